@@ -1,0 +1,35 @@
+# procam — the two commands of the README: `make demo` and `make test`.
+# Each creates or refreshes .venv and installs what is missing (system libraries included).
+
+PYTHON ?= python3.11
+VENV   ?= .venv
+# The CPU wheel of torch is the default; CUDA users override, e.g.
+#   make TORCH_SPEC="torch==2.13.0 --index-url https://download.pytorch.org/whl/cu128" demo
+TORCH_SPEC ?= torch==2.13.0
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.procam-installed
+
+.PHONY: demo test venv llvm bench clean-venv
+
+demo: venv llvm
+	$(VENV)/bin/procam demo --out data
+
+test: venv llvm
+	$(PY) -m pytest -q
+
+bench: venv llvm
+	$(PY) benchmarks/render.py
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml Makefile
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q $(TORCH_SPEC)
+	$(PY) -m pip install -q -e '.[test]'
+	@touch $@
+
+# Dr.Jit's LLVM backend needs LLVM >= 16: Debian's libllvm19. Installed when running as root and the
+# probe finds no usable LLVM; otherwise procam falls back to the scalar variant with a warning.
+llvm: $(STAMP)
+	@$(PY) -m sim.variant --ensure-llvm
