@@ -1,0 +1,167 @@
+"""Poses, pinhole rays and the rectangles a surface is made of — one source for scene and registration.
+
+Conventions match Mitsuba 3: ``look_at`` gives a frame whose local +x is ``cross(up, dir)`` (the
+image's *left*), +y the image's up and +z the viewing direction. A pinhole with horizontal field of
+view ``fov`` maps local direction (x, y, z) to normalised image coordinates
+``u = 0.5 - 0.5 x / (z t)`` and ``v = 0.5 - 0.5 y a / (z t)`` with ``t = tan(fov / 2)`` and aspect
+``a = width / height``; pixel (column, row) = (u W, v H), row 0 at the top. Mitsuba's projector
+emitter uses the same mapping for its irradiance texture.
+
+All lengths are in metres, angles in degrees.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Pinhole:
+    """A pinhole camera or projector.
+
+    Attributes
+    ----------
+    position, look_at, up : numpy.ndarray
+        Pose in world coordinates (metres).
+    fov : float
+        Horizontal field of view (degrees).
+    width, height : int
+        Image size in pixels.
+    """
+
+    position: np.ndarray
+    look_at: np.ndarray
+    up: np.ndarray
+    fov: float
+    width: int
+    height: int
+
+    @classmethod
+    def from_config(cls, cfg, resolution: tuple[int, int] | None = None) -> "Pinhole":
+        """Build from a projector or camera config (``position``, ``look_at``, ``up``, ``fov``,
+        ``resolution``); ``resolution`` (width, height) overrides the config's."""
+        w, h = resolution if resolution is not None else cfg.resolution
+        return cls(np.asarray(cfg.position, float), np.asarray(cfg.look_at, float),
+                   np.asarray(cfg.up, float), float(cfg.fov), int(w), int(h))
+
+    def frame(self) -> np.ndarray:
+        """3×3 matrix whose columns are the local x (left), y (up) and z (forward) axes."""
+        z = self.look_at - self.position
+        z = z / np.linalg.norm(z)
+        x = np.cross(self.up, z)
+        x = x / np.linalg.norm(x)
+        return np.stack([x, np.cross(z, x), z], axis=1)
+
+    @property
+    def tan_half(self) -> float:
+        return float(np.tan(np.radians(self.fov) / 2))
+
+    def pixel_rays(self) -> np.ndarray:
+        """Unit world directions through every pixel centre, shape (height, width, 3)."""
+        u = (np.arange(self.width) + 0.5) / self.width
+        v = (np.arange(self.height) + 0.5) / self.height
+        uu, vv = np.meshgrid(u, v)
+        t, a = self.tan_half, self.width / self.height
+        local = np.stack([-(2 * uu - 1) * t, -(2 * vv - 1) * t / a, np.ones_like(uu)], axis=-1)
+        d = local @ self.frame().T
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project world points (..., 3) to pixel coordinates.
+
+        Returns
+        -------
+        pixels : numpy.ndarray
+            (..., 2) continuous (column, row) coordinates; pixel centres at integer + 0.5.
+        in_front : numpy.ndarray
+            (...) bool, True where the point lies in front of the pinhole.
+        """
+        local = (points - self.position) @ self.frame()
+        z = local[..., 2]
+        safe = np.where(z > 1e-9, z, 1e-9)
+        t, a = self.tan_half, self.width / self.height
+        u = 0.5 - 0.5 * local[..., 0] / (safe * t)
+        v = 0.5 - 0.5 * local[..., 1] * a / (safe * t)
+        return np.stack([u * self.width, v * self.height], axis=-1), z > 1e-9
+
+
+@dataclass(frozen=True)
+class Rect:
+    """A textured rectangle: centre plus two half-axes (metres); normal = cross(ex, ey).
+
+    Texture coordinate s runs 0 → 1 along +ex, t runs 0 → 1 along −ey (row 0 at the top);
+    ``tex_span`` is the [s0, s1] part of the surface's albedo texture this rectangle shows.
+    """
+
+    center: np.ndarray
+    ex: np.ndarray
+    ey: np.ndarray
+    tex_span: tuple[float, float] = (0.0, 1.0)
+
+    @property
+    def normal(self) -> np.ndarray:
+        n = np.cross(self.ex, self.ey)
+        return n / np.linalg.norm(n)
+
+    def to_world(self) -> np.ndarray:
+        """4×4 matrix mapping Mitsuba's rectangle [-1, 1]² (normal +z) onto this rectangle."""
+        m = np.eye(4)
+        m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = self.ex, self.ey, self.normal, self.center
+        return m
+
+    def intersect(self, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+        """Ray parameter of the hit of rays ``origin + t dirs`` (dirs (..., 3)); inf on a miss."""
+        n = self.normal
+        denom = dirs @ n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((self.center - origin) @ n) / denom
+        hit = origin + t[..., None] * dirs
+        rel = hit - self.center
+        a = rel @ self.ex / (self.ex @ self.ex)
+        b = rel @ self.ey / (self.ey @ self.ey)
+        ok = (np.abs(denom) > 1e-12) & (t > 1e-6) & (np.abs(a) <= 1) & (np.abs(b) <= 1)
+        return np.where(ok, t, np.inf)
+
+
+def surface_rects(geometry: str, size: tuple[float, float], corner_angle: float) -> list[Rect]:
+    """The rectangles of a surface.
+
+    Parameters
+    ----------
+    geometry : {"plane", "corner"}
+        ``plane``: one rectangle in the z = 0 plane, centred at the origin, normal +z.
+        ``corner``: two wings meeting at a vertical edge through the origin, opening towards +z
+        (a room corner seen from inside), each wing ``size[0]`` wide.
+    size : (float, float)
+        Width and height in metres (per wing for a corner).
+    corner_angle : float
+        Opening angle of the corner in degrees (180 is a flat plane).
+    """
+    w, h = size
+    ey = np.array([0.0, h / 2, 0.0])
+    if geometry == "plane":
+        return [Rect(np.zeros(3), np.array([w / 2, 0.0, 0.0]), ey)]
+    if geometry != "corner":
+        raise ValueError(f"unknown surface geometry {geometry!r}; expected 'plane' or 'corner'")
+    s, c = np.sin(np.radians(corner_angle) / 2), np.cos(np.radians(corner_angle) / 2)
+    left = np.array([-s, 0.0, c])   # from the edge outwards, left wing
+    right = np.array([s, 0.0, c])
+    return [Rect(left * w / 2, -left * w / 2, ey, (0.0, 0.5)),
+            Rect(right * w / 2, right * w / 2, ey, (0.5, 1.0))]
+
+
+def first_hit(rects: list[Rect], origin: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest hit of rays over several rectangles.
+
+    Returns
+    -------
+    t : numpy.ndarray
+        (...) ray parameter (metres for unit ``dirs``), inf on a miss.
+    index : numpy.ndarray
+        (...) index of the rectangle hit, -1 on a miss.
+    """
+    ts = np.stack([r.intersect(origin, dirs) for r in rects], axis=0)
+    idx = np.argmin(ts, axis=0)
+    t = np.take_along_axis(ts, idx[None], axis=0)[0]
+    return t, np.where(np.isfinite(t), idx, -1)

@@ -1,0 +1,168 @@
+"""Camera → canonical projector view (design.md §4).
+
+The canonical view is the projector's own pixel grid at the dataset's size. Because the geometry
+is known exactly, every canonical pixel's projector ray is intersected with the surface and the hit
+point projected into the camera (:func:`exact_map`): dense, exact for non-planar surfaces too, with
+a mask of pixels the camera cannot see. For planar setups :func:`estimate_homography` also
+estimates the homography the way a real system would (projected checkerboard corners, OpenCV) so its
+error against the exact map can be reported.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from sim import geometry
+from sim.setup import Setup
+
+
+@dataclass(frozen=True)
+class WarpMap:
+    """Where each canonical pixel is found in the camera image.
+
+    Attributes
+    ----------
+    xy : numpy.ndarray
+        float32 (H, W, 2): camera pixel coordinates (column, row), pixel centres at integer + 0.5.
+    mask : numpy.ndarray
+        bool (H, W): True where the surface point is lit by that projector pixel and seen by the
+        camera (not occluded, inside the camera frame).
+    """
+
+    xy: np.ndarray
+    mask: np.ndarray
+
+
+def exact_map(setup: Setup, size: tuple[int, int]) -> WarpMap:
+    """Exact dense map from the scene geometry.
+
+    Parameters
+    ----------
+    setup : Setup
+        The setup (projector and camera poses, surface geometry).
+    size : (int, int)
+        Canonical (width, height) in pixels.
+    """
+    s = setup.surface
+    rects = geometry.surface_rects(s.geometry, s.size, s.corner_angle)
+    proj = geometry.Pinhole.from_config(setup.projector, size)
+    cam = geometry.Pinhole.from_config(setup.camera)
+    rays = proj.pixel_rays()
+    t, _ = geometry.first_hit(rects, proj.position, rays)
+    hit = np.isfinite(t)
+    points = proj.position + np.where(hit, t, 1.0)[..., None] * rays
+    xy, in_front = cam.project(points)
+    to_point = points - cam.position
+    dist = np.linalg.norm(to_point, axis=-1)
+    tc, _ = geometry.first_hit(rects, cam.position, to_point / dist[..., None])
+    unoccluded = np.abs(tc - dist) <= 1e-6 + 1e-5 * dist
+    inside = (xy[..., 0] >= 0) & (xy[..., 0] <= cam.width) & (xy[..., 1] >= 0) & (xy[..., 1] <= cam.height)
+    return WarpMap(xy.astype(np.float32), hit & in_front & unoccluded & inside)
+
+
+def warp(image: np.ndarray, wmap: WarpMap) -> np.ndarray:
+    """Sample a camera image at the canonical pixels (bilinear); unseen pixels are 0.
+
+    Works on 8-bit captures (rounded back to uint8) and on float images alike.
+    """
+    src = np.asarray(image)
+    work = src.astype(np.float32)
+    out = cv2.remap(work, wmap.xy[..., 0] - 0.5, wmap.xy[..., 1] - 0.5, cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    out[~wmap.mask] = 0
+    if src.dtype == np.uint8:
+        return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+    return out
+
+
+def checkerboard(size: tuple[int, int], squares: tuple[int, int] = (9, 7)) -> tuple[np.ndarray, np.ndarray]:
+    """A checkerboard frame with a white margin of one square, and its inner corners.
+
+    Returns
+    -------
+    frame : numpy.ndarray
+        uint8 (H, W, 3) projector frame at the canonical size.
+    corners : numpy.ndarray
+        float32 ((squares[0]-1) * (squares[1]-1), 2) inner-corner positions (column, row), pixel
+        centres at integer + 0.5, in OpenCV's row-major order.
+    """
+    w, h = size
+    nx, ny = squares
+    xs = np.linspace(0, w, nx + 3)[1:-1]  # square edges, one square of margin each side
+    ys = np.linspace(0, h, ny + 3)[1:-1]
+    cols = np.searchsorted(xs, np.arange(w) + 0.5) - 1
+    rows = np.searchsorted(ys, np.arange(h) + 0.5) - 1
+    inside = (cols[None, :] >= 0) & (cols[None, :] < nx) & (rows[:, None] >= 0) & (rows[:, None] < ny)
+    black = inside & ((cols[None, :] + rows[:, None]) % 2 == 0)
+    frame = np.where(black, 0, 255).astype(np.uint8)[..., None].repeat(3, axis=2)
+    gx, gy = np.meshgrid(xs[1:-1], ys[1:-1])
+    return frame, np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float32)
+
+
+def estimate_homography(capture: Callable[[np.ndarray], np.ndarray], size: tuple[int, int],
+                        squares: tuple[int, int] = (9, 7)) -> np.ndarray | None:
+    """Estimate the camera → canonical homography as a real system would.
+
+    Three frames are projected (checkerboard, white, black); the checkerboard capture is
+    normalised by the other two, which removes the surface texture and the ambient light, then
+    OpenCV finds the inner corners. The corner order is ambiguous for a symmetric search, so both
+    orders are tried and the one whose warped capture matches the pattern is kept.
+
+    Parameters
+    ----------
+    capture : callable
+        Maps a uint8 projector frame (canonical size) to a uint8 camera capture.
+    size : (int, int)
+        Canonical (width, height).
+
+    Returns
+    -------
+    numpy.ndarray or None
+        3×3 homography mapping camera pixel coordinates to canonical ones (both with pixel centres
+        at integer + 0.5), or None when the corners were not found.
+    """
+    frame, corners = checkerboard(size, squares)
+    w, h = size
+    shots = [capture(f).astype(np.float32).mean(axis=2)
+             for f in (frame, np.full_like(frame, 255), np.zeros_like(frame))]
+    pattern, white, black = shots
+    norm = (pattern - black) / np.maximum(white - black, 1.0)
+    lit = (white - black) > 8
+    binary = np.where(lit & (norm < 0.5), 0, 255).astype(np.uint8)
+    pattern_size = (squares[0] - 1, squares[1] - 1)
+    found, cam_corners = cv2.findChessboardCorners(binary, pattern_size,
+                                                   flags=cv2.CALIB_CB_ADAPTIVE_THRESH)
+    if not found:
+        return None
+    gray = np.clip(norm * 255, 0, 255).astype(np.uint8)
+    cam_corners = cv2.cornerSubPix(gray, cam_corners, (3, 3), (-1, -1),
+                                   (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3))
+    cam = cam_corners.reshape(-1, 2) + 0.5  # OpenCV puts pixel centres at integers
+    best, best_err = None, np.inf
+    for order in (cam, cam[::-1]):
+        hom, _ = cv2.findHomography(order, corners, 0)
+        if hom is None:
+            continue
+        shift = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1]]) @ hom @ np.array(
+            [[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])
+        seen = cv2.warpPerspective(binary, shift, (w, h), flags=cv2.INTER_NEAREST)
+        err = np.mean(np.abs(seen.astype(np.float32) - frame[..., 0]))
+        if err < best_err:
+            best, best_err = hom, err
+    return best
+
+
+def homography_error(hom: np.ndarray, wmap: WarpMap) -> dict:
+    """Distance (camera pixels) between the homography's and the exact map's camera positions.
+
+    Returns a dict with ``mean_px``, ``max_px`` over the visible canonical pixels.
+    """
+    h, w = wmap.mask.shape
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    canon = np.stack([u, v, np.ones_like(u)], axis=-1) @ np.linalg.inv(hom).T
+    cam = canon[..., :2] / canon[..., 2:]
+    d = np.linalg.norm(cam - wmap.xy, axis=-1)[wmap.mask]
+    return {"mean_px": float(d.mean()), "max_px": float(d.max())}

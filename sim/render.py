@@ -1,0 +1,116 @@
+"""Linear camera radiance of a setup for any projector frame (design.md §3).
+
+The scene is built once; each projector frame is swapped into the projector's texture through
+``mi.traverse`` (no reload, no recompilation). The ambient-only image is rendered once per setup at
+``render.ambient_spp`` and added: light transport is linear in the projector irradiance.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from sim import geometry, projector, scene
+from sim.setup import Setup
+from sim.variant import use_variant
+
+_TEXTURE = f"{scene.PROJECTOR_KEY}.irradiance.data"
+
+
+def mitsuba_seed(seed: int, stream: int, index: int) -> int:
+    """Sampler seed (uint32) of one capture: distinct per (setup seed, stream, frame index)."""
+    return (seed * 1_000_003 + stream * 100_003 + index) % 2**32
+
+
+def throw_distance(setup: Setup) -> float:
+    """Distance (metres) from the projector to the surface along its optical axis."""
+    p = geometry.Pinhole.from_config(setup.projector, (1, 1))
+    axis = p.frame()[:, 2]
+    rects = geometry.surface_rects(setup.surface.geometry, setup.surface.size, setup.surface.corner_angle)
+    t, _ = geometry.first_hit(rects, p.position, axis[None])
+    if not np.isfinite(t[0]):
+        return float(np.linalg.norm(p.look_at - p.position))
+    return float(t[0])
+
+
+class Renderer:
+    """Renders linear radiance (camera resolution, RGB float32) of one setup.
+
+    Parameters
+    ----------
+    setup : Setup
+        The validated setup.
+    fidelity : {"direct", "path"}, optional
+        Light-transport level; defaults to the setup's resolved level (``auto`` → direct for a
+        plane, path for a corner).
+    spp : int, optional
+        Samples per pixel of the projector contribution; defaults to ``setup.render.spp``.
+    """
+
+    def __init__(self, setup: Setup, fidelity: str | None = None, spp: int | None = None):
+        import mitsuba as mi
+
+        self.variant = use_variant()
+        self.setup = setup
+        self.fidelity = fidelity or scene.resolve_fidelity(setup)
+        self.spp = int(spp or setup.render.spp)
+        self.albedo = scene.albedo_texture(setup)
+        self._scene = mi.load_dict(scene.projector_scene(setup, self.albedo, self.fidelity, self.spp))
+        self._params = mi.traverse(self._scene)
+        self._ambient: np.ndarray | None = None
+        p = setup.projector
+        self.defocus_px = projector.defocus_blur_diameter_px(
+            p.aperture, p.focus_distance, throw_distance(setup), p.fov, p.resolution[0])
+
+    def emit(self, frame: np.ndarray) -> np.ndarray:
+        """Relative linear irradiance the projector emits for an input frame.
+
+        Parameters
+        ----------
+        frame : numpy.ndarray
+            Projector input, uint8 (H, W, 3) or float in [0, 1] (encoded), any size: it is
+            resized to the projector's resolution as the projector's own scaler would.
+
+        Returns
+        -------
+        numpy.ndarray
+            float32 (Hp, Wp, 3): response, black level, primaries mixing, then the defocus blur.
+        """
+        frame = np.asarray(frame)
+        x = frame.astype(np.float32) / 255.0 if frame.dtype == np.uint8 else frame.astype(np.float32)
+        w, h = self.setup.projector.resolution
+        if x.shape[:2] != (h, w):
+            shrink = x.shape[0] > h or x.shape[1] > w
+            x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+        irr = projector.projector_irradiance(np.clip(x, 0.0, 1.0), self.setup.projector)
+        return projector.defocus(irr, self.defocus_px)
+
+    def projector_radiance(self, irradiance: np.ndarray, seed: int = 0) -> np.ndarray:
+        """Radiance due to the projector alone for a relative irradiance texture (linear).
+
+        Exactly linear in ``irradiance`` for a fixed ``seed``.
+        """
+        import mitsuba as mi
+
+        self._params[_TEXTURE] = mi.TensorXf(np.ascontiguousarray(irradiance, dtype=np.float32))
+        self._params.update()
+        return np.array(mi.render(self._scene, self._params, seed=int(seed)), dtype=np.float32)
+
+    def ambient_radiance(self) -> np.ndarray:
+        """Radiance due to the ambient light alone (rendered once, at ``render.ambient_spp``)."""
+        import mitsuba as mi
+
+        if self._ambient is None:
+            amb = self.setup.ambient.radiance
+            w, h = self.setup.camera.resolution
+            if max(amb) <= 0:
+                self._ambient = np.zeros((h, w, 3), np.float32)
+            else:
+                sc = mi.load_dict(scene.ambient_scene(self.setup, self.albedo, self.fidelity,
+                                                      self.setup.render.ambient_spp))
+                self._ambient = np.array(mi.render(sc, seed=mitsuba_seed(self.setup.render.seed, 99, 0)),
+                                         dtype=np.float32)
+        return self._ambient
+
+    def radiance(self, frame: np.ndarray, seed: int = 0) -> np.ndarray:
+        """Total linear radiance at the camera for a projector input frame (projector + ambient)."""
+        return self.projector_radiance(self.emit(frame), seed) + self.ambient_radiance()

@@ -1,0 +1,130 @@
+"""Mitsuba scene dictionaries for a setup: surface, projector, camera and ambient light.
+
+The projector contribution and the ambient image are rendered by two separate scenes (two
+emitters in one render make Mitsuba pick one per sample: ~10× the noise); by linearity their sum
+is the full image. See design.md §2–3.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from sim import geometry, images
+from sim.setup import Setup
+
+PROJECTOR_KEY = "projector"
+"""Name of the projector emitter in the scene; its texture is ``projector.irradiance.data``."""
+
+
+def integrator_for(setup: Setup, fidelity: str) -> dict:
+    """Mitsuba integrator for a fidelity level ("direct" or "path")."""
+    if fidelity == "direct":
+        return {"type": "direct"}
+    if fidelity == "path":
+        return {"type": "path", "max_depth": int(setup.render.max_depth)}
+    raise ValueError(f"no Mitsuba integrator for fidelity {fidelity!r}; expected 'direct' or 'path'")
+
+
+def resolve_fidelity(setup: Setup) -> str:
+    """The rendering level used for a setup: ``auto`` is direct light for a plane (nothing on it
+    sees anything else) and path tracing when surfaces see each other (corner)."""
+    fid = setup.render.fidelity
+    if fid == "auto":
+        return "direct" if setup.surface.geometry == "plane" else "path"
+    return fid
+
+
+def albedo_texture(setup: Setup) -> np.ndarray:
+    """Linear albedo texture of the surface, float32 (H, W, 3) in [0, 1], row 0 at the top.
+
+    For a corner the left half of the texture covers the left wing and the right half the right.
+    """
+    s = setup.surface
+    n_wide = 2 if s.geometry == "corner" else 1
+    aspect = n_wide * s.size[0] / s.size[1]
+    longest = s.texture_resolution
+    res = (longest, max(1, round(longest / aspect))) if aspect >= 1 else (max(1, round(longest * aspect)), longest)
+    if s.texture == "uniform":
+        tex = np.ones((res[1], res[0], 3), np.float32)
+    elif s.texture in images.SURFACE_KINDS:
+        tex = images.surface_texture(s.texture, res, s.texture_seed)
+    else:
+        tex = images.load_texture_file(s.texture, res)
+    albedo = tex * np.float32(s.albedo_scale) * np.asarray(s.tint, np.float32)
+    return np.clip(albedo, 0.0, 1.0).astype(np.float32)
+
+
+def _bsdf(setup: Setup, albedo: np.ndarray) -> dict:
+    import mitsuba as mi
+
+    # Mitsuba's rectangle puts texture row 0 at local y = -1 (the bottom): flip so row 0 is on top.
+    tex = {"type": "bitmap", "data": mi.TensorXf(np.ascontiguousarray(albedo[::-1])), "raw": True,
+           "filter_type": "bilinear", "wrap_mode": "clamp"}
+    s = setup.surface
+    if s.material == "diffuse":
+        return {"type": "diffuse", "reflectance": tex}
+    return {"type": "roughplastic", "diffuse_reflectance": tex, "alpha": float(s.roughness),
+            "distribution": "ggx"}
+
+
+def surface_shapes(setup: Setup, albedo: np.ndarray) -> dict:
+    """The surface's rectangle shapes (one for a plane, two for a corner) as scene entries.
+
+    ``albedo`` is the surface's linear albedo texture from :func:`albedo_texture`.
+    """
+    import mitsuba as mi
+
+    s = setup.surface
+    shapes = {}
+    for i, rect in enumerate(geometry.surface_rects(s.geometry, s.size, s.corner_angle)):
+        w = albedo.shape[1]
+        part = albedo[:, round(rect.tex_span[0] * w):round(rect.tex_span[1] * w)]
+        shapes[f"surface_{i}"] = {"type": "rectangle",
+                                  "to_world": mi.ScalarTransform4f(rect.to_world().tolist()),
+                                  "bsdf": _bsdf(setup, part)}
+    return shapes
+
+
+def _look_at(cfg) -> "mi.ScalarTransform4f":
+    import mitsuba as mi
+
+    return mi.ScalarTransform4f().look_at(origin=list(cfg.position), target=list(cfg.look_at),
+                                          up=list(cfg.up))
+
+
+def sensor(setup: Setup, spp: int) -> dict:
+    """The camera: perspective, or thin lens when ``aperture_radius > 0``; box-filtered HDR film."""
+    c = setup.camera
+    d = {"type": "perspective", "fov": float(c.fov), "fov_axis": "x", "to_world": _look_at(c),
+         "film": {"type": "hdrfilm", "width": int(c.resolution[0]), "height": int(c.resolution[1]),
+                  "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+         "sampler": {"type": "multijitter", "sample_count": int(spp)}}
+    if c.aperture_radius > 0:
+        d.update(type="thinlens", aperture_radius=float(c.aperture_radius),
+                 focus_distance=float(c.focus_distance))
+    return d
+
+
+def projector_scene(setup: Setup, albedo: np.ndarray, fidelity: str, spp: int) -> dict:
+    """Scene lit by the projector alone; its irradiance texture starts black (swap frames later)."""
+    import mitsuba as mi
+
+    p = setup.projector
+    w, h = p.resolution
+    integrator = integrator_for(setup, fidelity)
+    if fidelity == "direct":
+        integrator["bsdf_samples"] = 0  # a delta emitter cannot be hit by BSDF sampling
+    return {"type": "scene", "integrator": integrator, "sensor": sensor(setup, spp),
+            **surface_shapes(setup, albedo),
+            PROJECTOR_KEY: {"type": "projector", "fov": float(p.fov), "to_world": _look_at(p),
+                            "scale": float(p.brightness),
+                            "irradiance": {"type": "bitmap", "raw": True, "filter_type": "nearest",
+                                           "wrap_mode": "clamp",
+                                           "data": mi.TensorXf(np.zeros((h, w, 3), np.float32))}}}
+
+
+def ambient_scene(setup: Setup, albedo: np.ndarray, fidelity: str, spp: int) -> dict:
+    """Scene lit by the constant ambient emitter alone."""
+    return {"type": "scene", "integrator": integrator_for(setup, fidelity),
+            "sensor": sensor(setup, spp), **surface_shapes(setup, albedo),
+            "ambient": {"type": "constant",
+                        "radiance": {"type": "rgb", "value": list(setup.ambient.radiance)}}}
