@@ -1,0 +1,53 @@
+"""Shared fixtures: Mitsuba variants, tiny setups, JIT cache hygiene."""
+from __future__ import annotations
+
+import copy
+
+import pytest
+
+from sim.variant import FALLBACK, choose_variant
+
+# A small, fast setup (64² camera, 64² projector): the physics tests build variations of it.
+TINY = {
+    "name": "tiny",
+    "surface": {"geometry": "plane", "size": [1.2, 1.0], "texture": "uniform", "albedo_scale": 0.8},
+    "projector": {"resolution": [64, 64], "fov": 30.0, "position": [0.0, 0.0, 1.0],
+                  "black_level": 0.0},
+    "camera": {"resolution": [64, 64], "fov": 40.0, "position": [0.25, 0.0, 1.0],
+               "shot_noise": 0.0, "read_noise": 0.0},
+    "ambient": {"radiance": [0.0, 0.0, 0.0]},
+    "render": {"fidelity": "direct", "spp": 4, "ambient_spp": 16, "seed": 0},
+}
+
+
+def tiny_setup(**sections):
+    """A validated tiny setup; keyword arguments override keys per section, e.g.
+    ``tiny_setup(camera={"position": [0, 0, 1]})``."""
+    from sim.setup import parse_setup
+
+    data = copy.deepcopy(TINY)
+    for section, values in sections.items():
+        if isinstance(values, dict):
+            data.setdefault(section, {}).update(values)
+        else:
+            data[section] = values
+    return parse_setup(data, source="<tiny>")
+
+
+VARIANTS = sorted({choose_variant(), FALLBACK})
+
+
+@pytest.fixture(params=VARIANTS)
+def variant(request):
+    """Each test using it runs once per available variant (the vectorised one and scalar)."""
+    return request.param
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _flush_jit():
+    """Clear Dr.Jit's kernel and memory caches after each test module."""
+    yield
+    import drjit as dr
+
+    dr.flush_kernel_cache()
+    dr.flush_malloc_cache()
