@@ -44,12 +44,15 @@ class Renderer:
         plane, path for a corner).
     spp : int, optional
         Samples per pixel of the projector contribution; defaults to ``setup.render.spp``.
+    variant : str, optional
+        Mitsuba variant; defaults to the one chosen for this machine (:mod:`sim.variant`).
     """
 
-    def __init__(self, setup: Setup, fidelity: str | None = None, spp: int | None = None):
+    def __init__(self, setup: Setup, fidelity: str | None = None, spp: int | None = None,
+                 variant: str | None = None):
         import mitsuba as mi
 
-        self.variant = use_variant()
+        self.variant = use_variant(variant)
         self.setup = setup
         self.fidelity = fidelity or scene.resolve_fidelity(setup)
         self.spp = int(spp or setup.render.spp)
@@ -91,6 +94,7 @@ class Renderer:
         """
         import mitsuba as mi
 
+        use_variant(self.variant)
         self._params[_TEXTURE] = mi.TensorXf(np.ascontiguousarray(irradiance, dtype=np.float32))
         self._params.update()
         return np.array(mi.render(self._scene, self._params, seed=int(seed)), dtype=np.float32)
@@ -105,6 +109,7 @@ class Renderer:
             if max(amb) <= 0:
                 self._ambient = np.zeros((h, w, 3), np.float32)
             else:
+                use_variant(self.variant)
                 sc = mi.load_dict(scene.ambient_scene(self.setup, self.albedo, self.fidelity,
                                                       self.setup.render.ambient_spp))
                 self._ambient = np.array(mi.render(sc, seed=mitsuba_seed(self.setup.render.seed, 99, 0)),

@@ -76,11 +76,17 @@ def choose_variant() -> str:
     return chosen
 
 
-def use_variant() -> str:
-    """Set the chosen variant on Mitsuba (idempotent) and return its name."""
+def use_variant(name: str | None = None) -> str:
+    """Set a variant on Mitsuba (idempotent) and return its name.
+
+    Parameters
+    ----------
+    name : str, optional
+        A Mitsuba variant; defaults to :func:`choose_variant`'s choice.
+    """
     import mitsuba as mi
 
-    name = choose_variant()
+    name = name or choose_variant()
     if mi.variant() != name:
         mi.set_variant(name)
     return name

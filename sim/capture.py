@@ -1,0 +1,104 @@
+"""The simulated hardware: projector frame → scene → camera → canonical view.
+
+:class:`Simulator` is the public entry point the compensation side uses (closed loop) and the
+dataset writer builds on. Each capture is identified by a ``(stream, index)`` pair that seeds both
+the Monte-Carlo sampler and the camera noise, so a capture is reproducible bit for bit and two
+different captures never share noise.
+"""
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+
+import numpy as np
+
+from sim import camera, registration
+from sim.render import Renderer, mitsuba_seed
+from sim.setup import Setup
+
+STREAMS = {"ref": 0, "train": 1, "test": 2, "registration": 3}
+"""Seed streams of the dataset splits; other users (closed loop) pick streams >= 16."""
+
+
+class Simulator:
+    """Capture projector frames through a simulated setup.
+
+    Parameters
+    ----------
+    setup : Setup
+        The validated setup.
+    size : (int, int)
+        Canonical (width, height) in pixels: the size of projector frames and warped captures.
+    fidelity, spp :
+        Passed to :class:`sim.render.Renderer`.
+
+    Attributes
+    ----------
+    timings : dict[str, float]
+        Seconds spent per phase (``render``, ``camera``, ``registration``) since creation.
+    """
+
+    def __init__(self, setup: Setup, size: tuple[int, int], fidelity: str | None = None,
+                 spp: int | None = None):
+        self.setup = setup
+        self.size = (int(size[0]), int(size[1]))
+        self.timings: dict[str, float] = defaultdict(float)
+        t0 = time.perf_counter()
+        self.renderer = Renderer(setup, fidelity, spp)
+        self.renderer.ambient_radiance()
+        self.timings["scene"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        self.warp_map = registration.exact_map(setup, self.size)
+        self.timings["registration"] += time.perf_counter() - t0
+
+    def linear(self, frame: np.ndarray, stream: int, index: int) -> np.ndarray:
+        """Linear camera radiance (float32, camera resolution) of one projector frame."""
+        t0 = time.perf_counter()
+        out = self.renderer.radiance(frame, mitsuba_seed(self.setup.render.seed, stream, index))
+        self.timings["render"] += time.perf_counter() - t0
+        return out
+
+    def raw(self, frame: np.ndarray, stream: int, index: int) -> np.ndarray:
+        """8-bit capture at camera resolution (noise seeded by ``(seed, stream, index)``)."""
+        radiance = self.linear(frame, stream, index)
+        t0 = time.perf_counter()
+        rng = np.random.default_rng([self.setup.render.seed, stream, index])
+        out = camera.capture(radiance, self.setup.camera, rng)
+        self.timings["camera"] += time.perf_counter() - t0
+        return out
+
+    def warp(self, raw: np.ndarray) -> np.ndarray:
+        """Resample a camera image into the canonical projector view."""
+        t0 = time.perf_counter()
+        out = registration.warp(raw, self.warp_map)
+        self.timings["registration"] += time.perf_counter() - t0
+        return out
+
+    def capture(self, frames: np.ndarray, stream: int, start: int = 0) -> np.ndarray:
+        """Warped 8-bit captures of a stack of frames.
+
+        Parameters
+        ----------
+        frames : numpy.ndarray
+            uint8 (N, H, W, 3) projector frames at the canonical size (or float in [0, 1]).
+        stream : int
+            Seed stream (see :data:`STREAMS`); frame k uses index ``start + k``.
+
+        Returns
+        -------
+        numpy.ndarray
+            uint8 (N, H, W, 3) captures in the canonical view.
+        """
+        return np.stack([self.warp(self.raw(f, stream, start + k)) for k, f in enumerate(frames)])
+
+    def homography_check(self) -> dict:
+        """Estimate the camera → canonical homography from projected checkerboards (planar
+        setups only) and compare it with the exact map (camera pixels)."""
+        if self.setup.surface.geometry != "plane":
+            return {"status": "not planar: exact map only"}
+        counter = iter(range(1_000))
+        hom = registration.estimate_homography(
+            lambda f: self.raw(f, STREAMS["registration"], next(counter)), self.size)
+        if hom is None:
+            return {"status": "checkerboard corners not found"}
+        return {"status": "ok", **registration.homography_error(hom, self.warp_map)}

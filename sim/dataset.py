@@ -1,0 +1,219 @@
+"""Writing a dataset in the layout of design.md §5 — atomically and resumably.
+
+```
+DATA_ROOT/frames.json                     how the shared projector frames were made
+DATA_ROOT/{ref,train,test}/img_XXXX.png   projector frames shared by all setups of the root
+DATA_ROOT/<setup>/setup.toml              the fully resolved setup
+DATA_ROOT/<setup>/cam/{raw,warp}/{ref,train,test}/img_XXXX.png
+DATA_ROOT/<setup>/meta.json               written last: its presence marks a finished setup
+```
+Every PNG is written to a temporary file and renamed, so a killed run leaves no truncated image;
+a re-run skips what exists and finishes the rest.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+from importlib.metadata import version
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from sim import images
+from sim.capture import STREAMS, Simulator
+from sim.errors import DatasetError
+from sim.pngio import read_png, write_png
+from sim.setup import Setup, dump_setup
+
+N_REF = 126
+"""125 plain colours (0001 black … 0125 white) and the gray surface frame 0126."""
+SURFACE_INDEX = 126
+
+
+def image_name(index: int) -> str:
+    """File name of the 1-based image ``index``: ``img_0001.png``."""
+    return f"img_{index:04d}.png"
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write a text file atomically (temporary file, then rename); an identical file is left
+    untouched, so a resumed run rewrites nothing."""
+    if path.exists() and path.read_text() == text:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def write_json(path: Path, data: dict) -> None:
+    """Write JSON atomically (see :func:`write_text`)."""
+    write_text(path, json.dumps(data, indent=2) + "\n")
+
+
+@dataclass(frozen=True)
+class FrameSpec:
+    """How a root's shared projector frames are made.
+
+    Attributes
+    ----------
+    n_train, n_test : int
+        Number of training and test frames.
+    size : (int, int)
+        Canonical (width, height) in pixels.
+    seed : int
+        Seed of the image generator.
+    images_dir : str or None
+        A folder of the user's own frames (train then test, sorted by name) instead of the
+        generator.
+    """
+
+    n_train: int = 500
+    n_test: int = 200
+    size: tuple[int, int] = (256, 256)
+    seed: int = 0
+    images_dir: str | None = None
+
+    def source(self) -> dict:
+        """What identifies the frames (counts excluded: a larger run extends a smaller one)."""
+        return {"size": list(self.size), "seed": self.seed,
+                "images_dir": str(Path(self.images_dir).resolve()) if self.images_dir else None}
+
+
+def projector_frames(spec: FrameSpec) -> dict[str, np.ndarray]:
+    """The uint8 projector frames of every split, (N, H, W, 3) each."""
+    ref = np.stack([images.plain_frame(c, spec.size) for c in images.plain_colours()]
+                   + [images.plain_frame(np.full(3, images.GRAY_LEVEL, np.uint8), spec.size)])
+    if spec.images_dir:
+        user = images.load_image_folder(spec.images_dir, spec.n_train + spec.n_test, spec.size)
+        return {"ref": ref, "train": user[:spec.n_train], "test": user[spec.n_train:]}
+    return {"ref": ref,
+            "train": images.projector_frames(spec.n_train, spec.size, spec.seed, stream=0),
+            "test": images.projector_frames(spec.n_test, spec.size, spec.seed, stream=1)}
+
+
+def write_frames(root: Path, spec: FrameSpec) -> dict[str, np.ndarray]:
+    """Write (or check and extend) the shared projector frames of a root.
+
+    Raises
+    ------
+    DatasetError
+        If the root already holds frames made differently (size, seed or image folder).
+    """
+    marker = root / "frames.json"
+    if marker.exists():
+        old = json.loads(marker.read_text())
+        if old.get("source") != spec.source():
+            raise DatasetError(f"{marker}: this root's projector frames were made with "
+                               f"{old.get('source')}, not {spec.source()}; use another --out")
+    frames = projector_frames(spec)
+    for split, stack in frames.items():
+        for i, frame in enumerate(stack, start=1):
+            path = root / split / image_name(i)
+            if not path.exists():
+                write_png(path, frame)
+    counts = {k: len(v) for k, v in frames.items()}
+    if marker.exists():
+        old_counts = json.loads(marker.read_text()).get("counts", {})
+        counts = {k: max(v, old_counts.get(k, 0)) for k, v in counts.items()}
+    write_json(marker, {"source": spec.source(), "counts": counts})
+    return frames
+
+
+def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None = None,
+                spp: int | None = None, progress: bool = True, overwrite: bool = False) -> Path:
+    """Render one setup into ``root/<setup.name>`` (resuming an interrupted run).
+
+    Parameters
+    ----------
+    root : Path
+        Dataset root (created if needed).
+    setup : Setup
+        Validated setup.
+    spec : FrameSpec
+        The shared projector frames.
+    fidelity, spp : optional
+        Override the setup's rendering level and samples per pixel (recorded in meta.json).
+    progress : bool
+        Show a progress bar with captures per second.
+    overwrite : bool
+        Allow replacing a setup folder rendered from a different setup file.
+
+    Returns
+    -------
+    Path
+        The setup folder.
+    """
+    root = Path(root)
+    out = root / setup.name
+    resolved = dump_setup(setup)
+    setup_file = out / "setup.toml"
+    if setup_file.exists() and setup_file.read_text() != resolved and not overwrite:
+        raise DatasetError(f"{setup_file}: the folder holds captures of a different setup; "
+                           "choose another --out or pass --overwrite")
+    frames = write_frames(root, spec)
+    counts = {k: len(v) for k, v in frames.items()}
+    meta_file = out / "meta.json"
+    if meta_file.exists():
+        meta = json.loads(meta_file.read_text())
+        if setup_file.read_text() == resolved and meta.get("size") == list(spec.size) and all(
+                meta.get("counts", {}).get(k, 0) >= n for k, n in counts.items()):
+            return out
+        meta_file.unlink()  # more captures asked for, or a different setup: no longer finished
+    write_text(setup_file, resolved)
+
+    todo = [(split, i) for split, stack in frames.items() for i in range(1, len(stack) + 1)
+            if not all((out / "cam" / kind / split / image_name(i)).exists() for kind in ("raw", "warp"))]
+    t_start = time.perf_counter()
+    sim = Simulator(setup, spec.size, fidelity, spp)
+    png_seconds = 0.0
+    with tqdm(total=len(todo), desc=f"render {setup.name}", unit="capture", disable=not progress) as bar:
+        for split, i in todo:
+            raw_file = out / "cam" / "raw" / split / image_name(i)
+            t0 = time.perf_counter()
+            done = raw_file.exists()  # written atomically: complete if present
+            raw = read_png(raw_file) if done else None
+            png_seconds += time.perf_counter() - t0
+            if raw is None:
+                raw = sim.raw(frames[split][i - 1], STREAMS[split], i)
+            warped = sim.warp(raw)
+            t0 = time.perf_counter()
+            if not done:
+                write_png(raw_file, raw)
+            write_png(out / "cam" / "warp" / split / image_name(i), warped)
+            png_seconds += time.perf_counter() - t0
+            bar.update()
+    rendered_seconds = time.perf_counter() - t_start
+    homography = sim.homography_check()
+    r = sim.renderer
+    meta = {
+        "procam_version": version("procam"),
+        "mitsuba_version": version("mitsuba"),
+        "drjit_version": version("drjit"),
+        "variant": r.variant,
+        "fidelity": r.fidelity,
+        "integrator": "direct" if r.fidelity == "direct" else f"path (max_depth {setup.render.max_depth})",
+        "spp": r.spp,
+        "ambient_spp": setup.render.ambient_spp,
+        "seeds": {"render": setup.render.seed, "frames": spec.seed,
+                  "streams": STREAMS},
+        "size": list(spec.size),
+        "camera_resolution": list(setup.camera.resolution),
+        "counts": counts,
+        "frames": spec.source(),
+        "projector_defocus_px": r.defocus_px,
+        "captures_this_run": len(todo),
+        "timings_s": {**{k: round(v, 4) for k, v in sim.timings.items()}, "png": round(png_seconds, 4),
+                      "total": round(rendered_seconds, 4)},
+        "captures_per_second": round(len(todo) / rendered_seconds, 3) if todo else None,
+        "registration": {"method": "exact (scene geometry)",
+                         "visible_fraction": float(sim.warp_map.mask.mean()),
+                         "homography": homography},
+    }
+    write_json(meta_file, meta)
+    return out
