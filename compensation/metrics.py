@@ -1,0 +1,171 @@
+"""Image-quality metrics of the CompenNet paper, over *all* test images.
+
+Definitions (design document, section 7), for predictions and targets (N, 3, H, W) in [0, 1]:
+
+* MSE  — mean squared error over all pixels, channels and images (one number for the whole set);
+* PSNR — ``10 · log10(1 / MSE)`` in dB (``inf`` for identical sets);
+* RMSE — ``sqrt(3 · MSE)``, the root mean squared RGB-vector distance per pixel;
+* SSIM — per image, SSIM with an 11×11 Gaussian window (σ = 1.5 pixels), per RGB channel, data
+  range 1, averaged over the channels; then the mean over images.
+
+The SSIM equals scikit-image's ``structural_similarity(a, b, channel_axis=-1,
+gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1)``: scikit-image
+filters with reflect padding and then crops a border of (11 - 1) / 2 = 5 pixels before averaging,
+which leaves exactly the positions of pytorch-msssim's 'valid' convolution, so the two average the
+same SSIM map. Metrics are computed in float64.
+
+Unlike the official code, nothing is dropped when N is not a multiple of the batch size:
+:func:`evaluate` streams over batches, accumulating the squared-error sum and the per-image SSIM
+sum, so its result equals the full-set definitions with bounded memory.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from compensation import losses
+
+
+def _check_pair(pred: Tensor, target: Tensor) -> None:
+    """Raise ``ValueError`` unless both are (N, 3, H, W) tensors of one shape with N > 0."""
+    for name, t in (("pred", pred), ("target", target)):
+        if not isinstance(t, Tensor):
+            raise ValueError(f"metrics: {name} must be a torch.Tensor, got {type(t).__name__}")
+        if t.ndim != 4 or t.shape[1] != 3 or t.shape[0] == 0:
+            raise ValueError(f"metrics: {name} must have shape (N, 3, H, W) with N > 0, "
+                             f"got {tuple(t.shape)}")
+    if pred.shape != target.shape:
+        raise ValueError(f"metrics: pred and target shapes differ: {tuple(pred.shape)} vs "
+                         f"{tuple(target.shape)}")
+
+
+def psnr_from_mse(mse: float) -> float:
+    """PSNR in dB of images in [0, 1] with mean squared error ``mse`` (``inf`` for 0).
+
+    Examples
+    --------
+    >>> psnr_from_mse(0.01)
+    20.0
+    """
+    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
+
+
+def rmse_from_mse(mse: float) -> float:
+    """The paper's RMSE, ``sqrt(3 · mse)``, of RGB images with per-channel mean squared error.
+
+    Examples
+    --------
+    >>> rmse_from_mse(0.03)
+    0.3
+    """
+    return math.sqrt(3.0 * mse)
+
+
+def mse(pred: Tensor, target: Tensor) -> float:
+    """Mean squared error over all pixels, channels and images (float64).
+
+    Examples
+    --------
+    >>> mse(torch.zeros(2, 3, 4, 4), torch.full((2, 3, 4, 4), 0.5))
+    0.25
+    """
+    _check_pair(pred, target)
+    return torch.mean((pred.double() - target.double()) ** 2).item()
+
+
+def psnr(pred: Tensor, target: Tensor) -> float:
+    """PSNR in dB, ``10 · log10(1 / MSE)`` with MSE over all pixels, channels and images.
+
+    Examples
+    --------
+    >>> round(psnr(torch.zeros(2, 3, 4, 4), torch.full((2, 3, 4, 4), 0.25)), 4)  # MSE 1/16
+    12.0412
+    """
+    return psnr_from_mse(mse(pred, target))
+
+
+def rmse(pred: Tensor, target: Tensor) -> float:
+    """The paper's RMSE, ``sqrt(3 · MSE)`` with MSE over all pixels, channels and images.
+
+    Examples
+    --------
+    >>> rmse(torch.zeros(2, 3, 4, 4), torch.full((2, 3, 4, 4), 0.5)) == 0.75 ** 0.5
+    True
+    """
+    return rmse_from_mse(mse(pred, target))
+
+
+def ssim_per_image(pred: Tensor, target: Tensor) -> Tensor:
+    """SSIM of each image pair, mean over its RGB channels, float64 tensor (N,).
+
+    11×11 Gaussian window, σ = 1.5 pixels, data range 1, valid window positions only (see the
+    module docstring for the match with scikit-image). H and W must be at least 11.
+
+    Examples
+    --------
+    >>> x = torch.rand(2, 3, 16, 16, generator=torch.Generator().manual_seed(0))
+    >>> ssim_per_image(x, x)
+    tensor([1., 1.], dtype=torch.float64)
+    """
+    _check_pair(pred, target)
+    return losses.ssim(pred.double(), target.double(), per_image=True)
+
+
+def ssim(pred: Tensor, target: Tensor) -> float:
+    """Mean over images of the per-image SSIM of :func:`ssim_per_image`.
+
+    Examples
+    --------
+    >>> x = torch.rand(2, 3, 16, 16, generator=torch.Generator().manual_seed(0))
+    >>> ssim(x, x)
+    1.0
+    """
+    return ssim_per_image(pred, target).mean().item()
+
+
+def evaluate(pred: Tensor, target: Tensor, batch_size: int = 64) -> dict[str, float]:
+    """PSNR, RMSE and SSIM of a whole test set, streamed over batches of ``batch_size`` images.
+
+    Every image counts (the last batch may be smaller); the result equals :func:`psnr`,
+    :func:`rmse` and :func:`ssim` on the full tensors up to float64 rounding.
+
+    Parameters
+    ----------
+    pred, target : Tensor
+        (N, 3, H, W) images in [0, 1]; H and W at least 11 pixels.
+    batch_size : int
+        Images per batch (bounds the float64 working memory).
+
+    Returns
+    -------
+    dict
+        ``psnr`` (dB), ``rmse`` and ``ssim`` as Python floats.
+
+    Raises
+    ------
+    ValueError
+        On mismatched or non-(N, 3, H, W) shapes, images smaller than the SSIM window, or a
+        ``batch_size`` below 1.
+
+    Examples
+    --------
+    >>> x = torch.zeros(5, 3, 16, 16)
+    >>> y = torch.full((5, 3, 16, 16), 0.5)
+    >>> {k: round(v, 4) for k, v in evaluate(x, y, batch_size=2).items()}
+    {'psnr': 6.0206, 'rmse': 0.866, 'ssim': 0.0004}
+    """
+    _check_pair(pred, target)
+    if not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(f"evaluate: batch_size must be a positive integer, got {batch_size!r}")
+    squared_error = 0.0
+    ssim_sum = 0.0
+    for i in range(0, pred.shape[0], batch_size):
+        p, t = pred[i:i + batch_size].double(), target[i:i + batch_size].double()
+        squared_error += torch.sum((p - t) ** 2).item()
+        ssim_sum += ssim_per_image(p, t).sum().item()
+    mean_squared = squared_error / target.numel()
+    return {"psnr": psnr_from_mse(mean_squared), "rmse": rmse_from_mse(mean_squared),
+            "ssim": ssim_sum / pred.shape[0]}

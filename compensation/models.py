@@ -1,0 +1,213 @@
+"""CompenNet (Huang & Ling, CVPR 2019) in the official layout, with and without the surface branch.
+
+The network maps a camera-captured image x̃, warped to the canonical projector view, to the projector
+input that produced it (the inverse of the projector–camera process). The surface branch encodes the
+surface image s̃ (the capture of a plain projector frame) into four feature maps that are added to the
+backbone's first four convolutions. Layer names follow the official code, so state dicts are
+recognisable: ``conv1``…``conv6``, ``transConv1``/``transConv2``, ``conv1_s``…``conv4_s`` and
+``skipConv1``…``skipConv3``. See section 7 of the design document.
+
+=====================  ==================================================
+Layer                  Shape
+=====================  ==================================================
+conv1 / conv1_s        Conv 3→32, 3×3, stride 2, padding 1
+conv2 / conv2_s        Conv 32→64, 3×3, stride 2, padding 1
+conv3 / conv3_s        Conv 64→128, 3×3, stride 1, padding 1
+conv4 / conv4_s        Conv 128→256, 3×3, stride 1, padding 1
+conv5                  Conv 256→128, 3×3, stride 1, padding 1
+transConv1             ConvTranspose 128→64, 2×2, stride 2
+transConv2             ConvTranspose 64→32, 2×2, stride 2
+conv6                  Conv 32→3, 3×3, stride 1, padding 1
+skipConv1              3 × [Conv 3→3, 3×3, padding 1; ReLU]
+skipConv2              Conv 32→64, 1×1
+skipConv3              Conv 64→128, 1×1
+=====================  ==================================================
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+SurfaceFeatures = tuple[Tensor, Tensor, Tensor, Tensor]
+"""The ReLU outputs of ``conv1_s``…``conv4_s`` (res1_s…res4_s), each (B, C, h, w) with B = 1 or N."""
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Number of trainable parameters (weights and biases) of ``model``.
+
+    Examples
+    --------
+    >>> count_parameters(CompenNet(surface=True)), count_parameters(CompenNet(surface=False))
+    (1124479, 736063)
+    """
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+def _check_images(name: str, t: Tensor) -> None:
+    """Raise ``ValueError`` unless ``t`` is an (N, 3, H, W) tensor with H and W divisible by 4."""
+    if not isinstance(t, Tensor):
+        raise ValueError(f"CompenNet: {name} must be a torch.Tensor, got {type(t).__name__}")
+    if t.ndim != 4:
+        raise ValueError(f"CompenNet: {name} must have shape (N, 3, H, W), got {tuple(t.shape)} "
+                         f"({t.ndim} dimensions)")
+    if t.shape[1] != 3:
+        raise ValueError(f"CompenNet: {name} must be RGB with 3 channels, got {t.shape[1]} channels "
+                         f"in shape {tuple(t.shape)}")
+    h, w = t.shape[2:]
+    if h % 4 or w % 4 or h == 0 or w == 0:
+        raise ValueError(f"CompenNet: {name} height and width must be positive multiples of 4, "
+                         f"got {h}x{w} (H x W)")
+
+
+class CompenNet(nn.Module):
+    """CompenNet, optionally without the surface branch ("CompenNet w/o surf").
+
+    Parameters
+    ----------
+    surface : bool
+        Build the surface branch ``conv1_s``…``conv4_s`` (1,124,479 parameters); without it the
+        network has 736,063 parameters and ignores any surface input.
+
+    Notes
+    -----
+    As in the official code, Conv2d weights get Kaiming-normal initialisation (seed with
+    :func:`torch.manual_seed` for a reproducible network); transposed convolutions and all biases
+    keep PyTorch's default initialisation.
+    """
+
+    def __init__(self, surface: bool = True):
+        super().__init__()
+        self.surface = surface
+        self.relu = nn.ReLU()
+
+        self.conv1 = nn.Conv2d(3, 32, 3, 2, 1)
+        self.conv2 = nn.Conv2d(32, 64, 3, 2, 1)
+        self.conv3 = nn.Conv2d(64, 128, 3, 1, 1)
+        self.conv4 = nn.Conv2d(128, 256, 3, 1, 1)
+        self.conv5 = nn.Conv2d(256, 128, 3, 1, 1)
+        self.transConv1 = nn.ConvTranspose2d(128, 64, 2, 2, 0)
+        self.transConv2 = nn.ConvTranspose2d(64, 32, 2, 2, 0)
+        self.conv6 = nn.Conv2d(32, 3, 3, 1, 1)
+
+        if surface:
+            self.conv1_s = nn.Conv2d(3, 32, 3, 2, 1)
+            self.conv2_s = nn.Conv2d(32, 64, 3, 2, 1)
+            self.conv3_s = nn.Conv2d(64, 128, 3, 1, 1)
+            self.conv4_s = nn.Conv2d(128, 256, 3, 1, 1)
+
+        self.skipConv1 = nn.Sequential(
+            nn.Conv2d(3, 3, 3, 1, 1), self.relu,
+            nn.Conv2d(3, 3, 3, 1, 1), self.relu,
+            nn.Conv2d(3, 3, 3, 1, 1), self.relu,
+        )
+        self.skipConv2 = nn.Conv2d(32, 64, 1, 1, 0)
+        self.skipConv3 = nn.Conv2d(64, 128, 1, 1, 0)
+
+        for m in self.modules():
+            if type(m) is nn.Conv2d:  # Conv2d only, as the official code (not ConvTranspose2d)
+                nn.init.kaiming_normal_(m.weight)
+
+    def surface_features(self, s: Tensor) -> SurfaceFeatures:
+        """Encode the surface image(s) s̃ with the surface branch.
+
+        The result depends only on s̃ and the weights: compute it once and pass it to
+        :meth:`forward` as ``features`` for every batch (e.g. at inference, under
+        :func:`torch.no_grad`). During training, pass ``s`` to :meth:`forward` instead so that the
+        surface branch receives gradients.
+
+        Parameters
+        ----------
+        s : Tensor
+            Surface image(s), (1, 3, H, W) or (N, 3, H, W), float in [0, 1]; H and W multiples of 4.
+
+        Returns
+        -------
+        tuple of 4 Tensor
+            res1_s (B, 32, H/2, W/2), res2_s (B, 64, H/4, W/4), res3_s (B, 128, H/4, W/4),
+            res4_s (B, 256, H/4, W/4), with B the batch of ``s``.
+
+        Raises
+        ------
+        ValueError
+            If the network has no surface branch or ``s`` has a bad shape.
+        """
+        if not self.surface:
+            raise ValueError("CompenNet(surface=False) has no surface branch; surface_features "
+                             "needs CompenNet(surface=True)")
+        _check_images("surface s", s)
+        res1_s = self.relu(self.conv1_s(s))
+        res2_s = self.relu(self.conv2_s(res1_s))
+        res3_s = self.relu(self.conv3_s(res2_s))
+        res4_s = self.relu(self.conv4_s(res3_s))
+        return res1_s, res2_s, res3_s, res4_s
+
+    def forward(self, x: Tensor, s: Tensor | None = None,
+                features: SurfaceFeatures | None = None) -> Tensor:
+        """Infer the projector input π†(x̃) from camera captures x̃.
+
+        Parameters
+        ----------
+        x : Tensor
+            Camera captures warped to the projector view, (N, 3, H, W), float in [0, 1]; H and W
+            must be multiples of 4.
+        s : Tensor, optional
+            Surface image s̃, (1, 3, H, W) — the same surface for the whole batch, encoded once and
+            broadcast — or (N, 3, H, W), one per sample. With ``surface=True`` exactly one of ``s``
+            and ``features`` is required; with ``surface=False`` both are ignored, so callers may
+            pass the same arguments to either variant.
+        features : tuple of 4 Tensor, optional
+            The output of :meth:`surface_features` for the same H and W, with batch 1 or N.
+
+        Returns
+        -------
+        Tensor
+            (N, 3, H, W) projector input, in [0, 1] (ReLU below, clamp at 1 above).
+
+        Raises
+        ------
+        ValueError
+            On a bad shape of ``x``, ``s`` or ``features``, a spatial size mismatch between them,
+            or a missing / doubly given surface input for ``surface=True``.
+        """
+        _check_images("input x", x)
+        # Without the surface branch the surface terms are zero (adding 0 leaves the values as is).
+        res_s = self._surface_terms(x, s, features) if self.surface else (0, 0, 0, 0)
+        res1 = self.skipConv1(x)
+        x = self.relu(self.conv1(x) + res_s[0])
+        res2 = self.skipConv2(x)
+        x = self.relu(self.conv2(x) + res_s[1])
+        res3 = self.skipConv3(x)
+        x = self.relu(self.conv3(x) + res_s[2])
+        x = self.relu(self.conv4(x) + res_s[3])
+        x = self.relu(self.conv5(x) + res3)
+        x = self.relu(self.transConv1(x) + res2)
+        x = self.relu(self.transConv2(x))
+        return torch.clamp(self.relu(self.conv6(x) + res1), max=1)
+
+    def _surface_terms(self, x: Tensor, s: Tensor | None,
+                       features: SurfaceFeatures | None) -> SurfaceFeatures:
+        """Surface features for ``forward``: from ``s`` or checked ``features``, batch 1 or N."""
+        n, _, h, w = x.shape
+        if (s is None) == (features is None):
+            raise ValueError("CompenNet(surface=True): pass exactly one of the surface image s "
+                             "(1 or N, 3, H, W) and its cached surface_features(s) "
+                             f"(got s={'None' if s is None else 'a tensor'}, "
+                             f"features={'None' if features is None else 'given'})")
+        if s is not None:
+            _check_images("surface s", s)
+            if s.shape[2:] != x.shape[2:] or s.shape[0] not in (1, n):
+                raise ValueError(f"CompenNet: surface s has shape {tuple(s.shape)}; expected "
+                                 f"(1, 3, {h}, {w}) or ({n}, 3, {h}, {w}) to match input x "
+                                 f"{tuple(x.shape)}")
+            return self.surface_features(s)
+        expected = [(32, h // 2, w // 2), (64, h // 4, w // 4), (128, h // 4, w // 4),
+                    (256, h // 4, w // 4)]
+        shapes = [tuple(f.shape) for f in features] if isinstance(features, (tuple, list)) else None
+        if (shapes is None or len(shapes) != 4
+                or any(len(got) != 4 or got[0] not in (1, n) or got[1:] != want
+                       for got, want in zip(shapes, expected))):
+            raise ValueError(f"CompenNet: features must be surface_features(s) of a (1 or {n}, 3, "
+                             f"{h}, {w}) surface, i.e. 4 tensors of shapes (1 or {n}, C, h, w) "
+                             f"with (C, h, w) = {expected}; got {shapes or type(features).__name__}")
+        return tuple(features)
