@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Callable
 
 import pytorch_msssim
+import torch
 import torch.nn.functional as F
 from torch import Tensor
 
@@ -18,6 +19,27 @@ WIN_SIZE = 11
 """Side of the Gaussian SSIM window (pixels)."""
 WIN_SIGMA = 1.5
 """Standard deviation of the Gaussian SSIM window (pixels)."""
+
+
+def gaussian_window(size: int = WIN_SIZE, sigma: float = WIN_SIGMA) -> Tensor:
+    """Normalised 1-D Gaussian SSIM window, float64, shaped (1, 1, 1, size) for pytorch-msssim.
+
+    Built in float64 because pytorch-msssim's own window is computed and normalised in float32,
+    which moves float64 SSIM values by about 1e-6 from scikit-image's; pytorch-msssim casts the
+    window to the images' dtype.
+
+    Examples
+    --------
+    >>> w = gaussian_window()
+    >>> w.shape, round(w.sum().item(), 12)
+    (torch.Size([1, 1, 1, 11]), 1.0)
+    """
+    x = torch.arange(size, dtype=torch.float64) - size // 2
+    g = torch.exp(-x**2 / (2 * sigma**2))
+    return (g / g.sum()).reshape(1, 1, 1, size)
+
+
+_WINDOW = gaussian_window()
 
 
 def l1(pred: Tensor, target: Tensor) -> Tensor:
@@ -47,8 +69,9 @@ def l2(pred: Tensor, target: Tensor) -> Tensor:
 def ssim(pred: Tensor, target: Tensor, per_image: bool = False) -> Tensor:
     """Structural similarity (1 for identical images), mean over RGB channels and images.
 
-    pytorch-msssim's SSIM with an 11×11 Gaussian window, σ = 1.5 pixels, data range 1, averaged
-    over the valid (unpadded) window positions of each channel. Not a loss itself: see
+    pytorch-msssim's SSIM with an 11×11 Gaussian window (:func:`gaussian_window`, σ = 1.5
+    pixels), data range 1, K = (0.01, 0.03), averaged over the valid (unpadded) window positions
+    of each channel. Not a loss itself: see
     :func:`ssim_loss`.
 
     Parameters
@@ -79,8 +102,8 @@ def ssim(pred: Tensor, target: Tensor, per_image: bool = False) -> Tensor:
     if pred.ndim != 4 or min(pred.shape[2:]) < WIN_SIZE:
         raise ValueError(f"ssim: expected (N, C, H, W) images with H and W at least {WIN_SIZE} "
                          f"pixels (the SSIM window), got shape {tuple(pred.shape)}")
-    return pytorch_msssim.ssim(pred, target, data_range=1.0, size_average=not per_image,
-                               win_size=WIN_SIZE, win_sigma=WIN_SIGMA)
+    win = _WINDOW.repeat(pred.shape[1], 1, 1, 1)  # one window per channel (grouped convolution)
+    return pytorch_msssim.ssim(pred, target, data_range=1.0, size_average=not per_image, win=win)
 
 
 def ssim_loss(pred: Tensor, target: Tensor) -> Tensor:

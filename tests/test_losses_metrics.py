@@ -1,0 +1,164 @@
+"""Losses and the paper's metrics: SSIM against scikit-image, PSNR/RMSE by hand, all images count."""
+from __future__ import annotations
+
+import doctest
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.ndimage import gaussian_filter
+from skimage import data
+from skimage.metrics import structural_similarity
+
+from compensation import losses, metrics, models
+
+
+def to_tensor(images: list[np.ndarray]) -> torch.Tensor:
+    """(H, W, 3) float arrays -> (N, 3, H, W) float64 tensor."""
+    return torch.from_numpy(np.stack(images)).permute(0, 3, 1, 2).contiguous()
+
+
+def skimage_ssim(a: np.ndarray, b: np.ndarray) -> float:
+    return structural_similarity(a, b, channel_axis=-1, gaussian_weights=True, sigma=1.5,
+                                 use_sample_covariance=False, data_range=1)
+
+
+def natural_pairs(size: tuple[int, int]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Crops of bundled photographs (targets) and noisy / blurred / dimmed versions (predictions)."""
+    h, w = size
+    rng = np.random.default_rng(0)
+    targets, preds = [], []
+    for image, (y, x) in ((data.astronaut(), (100, 180)), (data.chelsea(), (50, 150)),
+                          (data.coffee(), (100, 200))):
+        a = image[y:y + h, x:x + w].astype(np.float64) / 255
+        for b in (np.clip(a + rng.normal(0, 0.1, a.shape), 0, 1),
+                  gaussian_filter(a, sigma=(1.2, 1.2, 0)),
+                  np.clip(0.7 * a + 0.1 + rng.normal(0, 0.02, a.shape), 0, 1)):
+            targets.append(a)
+            preds.append(b)
+    return targets, preds
+
+
+@pytest.mark.parametrize("size", [(64, 64), (128, 128), (64, 96)])
+def test_ssim_matches_skimage_on_natural_images(size):
+    targets, preds = natural_pairs(size)
+    expected = np.array([skimage_ssim(a, b) for a, b in zip(targets, preds)])
+    assert expected.min() < 0.5 and expected.max() > 0.8  # a spread of qualities
+    target, pred = to_tensor(targets), to_tensor(preds)
+    per_image = metrics.ssim_per_image(pred, target).numpy()
+    # Same window, constants and averaging region: float64 agrees to rounding.
+    np.testing.assert_allclose(per_image, expected, rtol=0, atol=1e-10)
+    assert metrics.ssim(pred, target) == pytest.approx(expected.mean(), abs=1e-10)
+    # The float32 training SSIM is the same definition, to float32 rounding.
+    loss_ssim = losses.ssim(pred.float(), target.float(), per_image=True).double().numpy()
+    np.testing.assert_allclose(loss_ssim, expected, rtol=0, atol=1e-4)
+
+
+def test_psnr_rmse_by_hand():
+    target = torch.zeros(2, 3, 2, 2)
+    pred = target.clone()
+    pred[0] = 0.5   # 12 values with squared error 0.25
+    pred[1, 0] = 0.25  # 4 values with squared error 0.0625
+    mse = (12 * 0.25 + 4 * 0.0625) / 24
+    assert metrics.mse(pred, target) == pytest.approx(mse, rel=1e-12)
+    assert metrics.psnr(pred, target) == pytest.approx(10 * math.log10(1 / mse), rel=1e-12)
+    assert metrics.rmse(pred, target) == pytest.approx(math.sqrt(3 * mse), rel=1e-12)
+    assert metrics.psnr(target, target) == math.inf
+    assert metrics.rmse(target, target) == 0.0
+
+
+def test_evaluate_counts_every_image():
+    # Five images with constant errors 0.1 ... 0.5; batch 2 leaves a remainder of one image.
+    n = 5
+    g = torch.Generator().manual_seed(0)
+    target = 0.25 + 0.5 * torch.rand(n, 3, 16, 16, generator=g)
+    errors = torch.tensor([0.1, 0.2, 0.3, 0.4, 0.5])
+    pred = target + errors.view(n, 1, 1, 1)
+    mse = float(np.mean(errors.double().numpy() ** 2))
+    result = metrics.evaluate(pred, target, batch_size=2)
+    assert set(result) == {"psnr", "rmse", "ssim"}
+    assert all(type(v) is float for v in result.values())
+    assert result["psnr"] == pytest.approx(10 * math.log10(1 / mse), rel=1e-6)
+    assert result["rmse"] == pytest.approx(math.sqrt(3 * mse), rel=1e-6)
+    per_image = [metrics.ssim(pred[i:i + 1], target[i:i + 1]) for i in range(n)]
+    assert result["ssim"] == pytest.approx(np.mean(per_image), abs=1e-12)
+    # Dropping the last image (as the official code does with a remainder) would change both.
+    dropped = metrics.evaluate(pred[:4], target[:4], batch_size=2)
+    assert abs(dropped["psnr"] - result["psnr"]) > 0.5
+    assert abs(dropped["ssim"] - result["ssim"]) > 1e-4
+    whole = {"psnr": metrics.psnr(pred, target), "rmse": metrics.rmse(pred, target),
+             "ssim": metrics.ssim(pred, target)}
+    for batch_size in (1, 3, 64):
+        assert metrics.evaluate(pred, target, batch_size=batch_size) == pytest.approx(whole,
+                                                                                      rel=1e-12)
+
+
+@pytest.mark.parametrize(("pred_shape", "target_shape", "match"), [
+    ((2, 3, 16, 16), (2, 3, 16, 12), "shapes differ"),
+    ((2, 3, 16, 16), (3, 3, 16, 16), "shapes differ"),
+    ((2, 2, 16, 16), (2, 2, 16, 16), r"\(N, 3, H, W\) with N > 0, got \(2, 2, 16, 16\)"),
+    ((3, 16, 16), (3, 16, 16), r"\(N, 3, H, W\) with N > 0"),
+    ((0, 3, 16, 16), (0, 3, 16, 16), "N > 0"),
+    ((2, 3, 16, 8), (2, 3, 16, 8), "at least 11 pixels"),
+])
+def test_evaluate_rejects_bad_shapes(pred_shape, target_shape, match):
+    with pytest.raises(ValueError, match=match):
+        metrics.evaluate(torch.zeros(pred_shape), torch.zeros(target_shape))
+
+
+def test_evaluate_rejects_bad_batch_size():
+    x = torch.zeros(2, 3, 16, 16)
+    with pytest.raises(ValueError, match="batch_size must be a positive integer, got 0"):
+        metrics.evaluate(x, x, batch_size=0)
+
+
+def test_loss_values():
+    target = torch.zeros(2, 3, 16, 16)
+    pred = target.clone()
+    pred[0] = 0.5
+    pred[1, :, :8] = 1.0
+    assert losses.l1(pred, target).item() == pytest.approx((0.5 + 0.5) / 2)
+    assert losses.l2(pred, target).item() == pytest.approx((0.25 + 0.5) / 2)
+    g = torch.Generator().manual_seed(0)
+    x = torch.rand(2, 3, 16, 16, generator=g)
+    assert losses.l1_ssim(x, x).item() == pytest.approx(0.0, abs=1e-6)
+    assert losses.ssim_loss(x, x).item() == pytest.approx(0.0, abs=1e-6)
+    y = torch.rand(2, 3, 16, 16, generator=g)
+    assert losses.l1_ssim(x, y).item() == pytest.approx(
+        losses.l1(x, y).item() + 1 - losses.ssim(x, y).item(), abs=1e-6)
+    assert 0.9 < losses.ssim_loss(x, y).item() < 1.1  # independent noise: SSIM near 0
+
+
+@pytest.mark.parametrize("name", sorted(losses.LOSSES))
+def test_gradients_flow(name):
+    g = torch.Generator().manual_seed(0)
+    target = torch.rand(2, 3, 16, 16, generator=g)
+    pred = torch.rand(2, 3, 16, 16, generator=g).requires_grad_()
+    loss = losses.get_loss(name)(pred, target)
+    assert loss.ndim == 0
+    loss.backward()
+    assert torch.isfinite(pred.grad).all() and pred.grad.abs().sum() > 0
+    # A small step against the gradient lowers the loss.
+    with torch.no_grad():
+        stepped = losses.get_loss(name)(pred - 1e-2 * pred.grad / pred.grad.abs().max(), target)
+    assert stepped < loss
+
+
+def test_get_loss():
+    assert set(losses.LOSSES) == {"l1", "l2", "ssim", "l1+ssim"}
+    assert losses.get_loss("l1+ssim") is losses.l1_ssim
+    assert losses.get_loss("ssim") is losses.ssim_loss
+    with pytest.raises(ValueError, match=r"unknown loss 'mse'; choose one of: l1, l2, ssim, l1\+ssim"):
+        losses.get_loss("mse")
+
+
+def test_ssim_loss_rejects_images_smaller_than_window():
+    with pytest.raises(ValueError, match="at least 11 pixels"):
+        losses.ssim(torch.zeros(1, 3, 8, 8), torch.zeros(1, 3, 8, 8))
+
+
+@pytest.mark.parametrize("module", [losses, metrics, models])
+def test_doctests(module):
+    result = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0
