@@ -77,8 +77,8 @@ def test_corner_path_tracing_adds_interreflection():
     corner = {"geometry": "corner", "size": [0.6, 1.0]}
     proj = {"position": [0.0, 0.0, 1.2]}
     ones = np.ones((64, 64, 3), np.float32)
-    direct = Renderer(tiny_setup(surface=corner, projector=proj, render={"fidelity": "path", "max_depth": 2}))
-    path = Renderer(tiny_setup(surface=corner, projector=proj, render={"fidelity": "path", "max_depth": 3}))
+    setup = tiny_setup(surface=corner, projector=proj, render={"fidelity": "path", "max_depth": 3})
+    direct, path = Renderer(setup, fidelity="direct"), Renderer(setup)
     d, p = direct.projector_radiance(ones).mean(), path.projector_radiance(ones).mean()
     assert p > 1.1 * d
 
