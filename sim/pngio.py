@@ -5,6 +5,7 @@ import os
 import tempfile
 from pathlib import Path
 
+import cv2
 import imageio.v3 as iio
 import numpy as np
 
@@ -52,7 +53,9 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
     """Write an 8-bit RGB PNG atomically (temporary file in the same folder, then rename).
 
-    A reader never sees a truncated file: either the old file (or none) or the complete new one.
+    A reader never sees a truncated file, even when the writer is killed: either the old file
+    (or none) or the complete new one. (No fsync: that would guard against power loss too, at
+    ~70 ms a file — twice the cost of rendering a capture.)
 
     Parameters
     ----------
@@ -68,10 +71,11 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        ok, encoded = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]))  # OpenCV is BGR
+        if not ok:
+            raise OSError(f"{path}: PNG encoding failed")
         with os.fdopen(fd, "wb") as f:
-            f.write(iio.imwrite("<bytes>", image, extension=".png"))
-            f.flush()
-            os.fsync(f.fileno())
+            f.write(encoded.tobytes())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
