@@ -13,7 +13,8 @@ from collections import defaultdict
 import numpy as np
 
 from sim import camera, registration
-from sim.render import Renderer, mitsuba_seed
+from sim.fidelity import make_renderer, resolve
+from sim.render import mitsuba_seed
 from sim.setup import Setup
 
 STREAMS = {"ref": 0, "train": 1, "test": 2, "registration": 3}
@@ -29,22 +30,31 @@ class Simulator:
         The validated setup.
     size : (int, int)
         Canonical (width, height) in pixels: the size of projector frames and warped captures.
-    fidelity, spp :
-        Passed to :class:`sim.render.Renderer`.
+    fidelity, spp : optional
+        Override the setup's level and samples per pixel (:func:`sim.fidelity.resolve`; ``auto``
+        measures its choice first).
+    cache_dir : Path, optional
+        Where the ``transport`` level keeps its calibrated operator.
 
     Attributes
     ----------
+    choice : sim.fidelity.Choice
+        The level and spp used, and why.
     timings : dict[str, float]
-        Seconds spent per phase (``render``, ``camera``, ``registration``) since creation.
+        Seconds spent per phase (``fidelity`` — the ``auto`` measurement —, ``scene`` — including a
+        ``transport`` calibration —, ``render``, ``camera``, ``registration``) since creation.
     """
 
     def __init__(self, setup: Setup, size: tuple[int, int], fidelity: str | None = None,
-                 spp: int | None = None):
+                 spp: int | None = None, cache_dir=None):
         self.setup = setup
         self.size = (int(size[0]), int(size[1]))
         self.timings: dict[str, float] = defaultdict(float)
         t0 = time.perf_counter()
-        self.renderer = Renderer(setup, fidelity, spp)
+        self.choice = resolve(setup, fidelity, spp)
+        self.timings["fidelity"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        self.renderer = make_renderer(setup, self.choice.level, self.choice.spp, cache_dir)
         self.renderer.ambient_radiance()
         self.timings["scene"] += time.perf_counter() - t0
         t0 = time.perf_counter()

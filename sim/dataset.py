@@ -16,7 +16,7 @@ import json
 import os
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from importlib.metadata import version
 from pathlib import Path
 
@@ -26,6 +26,7 @@ from tqdm import tqdm
 from sim import images
 from sim.capture import STREAMS, Simulator
 from sim.errors import DatasetError
+from sim.fidelity import describe
 from sim.pngio import read_png, write_png
 from sim.setup import Setup, dump_setup
 
@@ -138,7 +139,8 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
     spec : FrameSpec
         The shared projector frames.
     fidelity, spp : optional
-        Override the setup's rendering level and samples per pixel (recorded in meta.json).
+        Override the setup's rendering level and samples per pixel (recorded in meta.json, with
+        what ``auto`` measured; a ``transport`` operator is cached in ``<setup>/cache``).
     progress : bool
         Show a progress bar with captures per second.
     overwrite : bool
@@ -170,7 +172,7 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
     todo = [(split, i) for split, stack in frames.items() for i in range(1, len(stack) + 1)
             if not all((out / "cam" / kind / split / image_name(i)).exists() for kind in ("raw", "warp"))]
     t_start = time.perf_counter()
-    sim = Simulator(setup, spec.size, fidelity, spp)
+    sim = Simulator(setup, spec.size, fidelity, spp, cache_dir=out / "cache")
     png_seconds = 0.0
     with tqdm(total=len(todo), desc=f"render {setup.name}", unit="capture", disable=not progress) as bar:
         for split, i in todo:
@@ -197,8 +199,11 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         "drjit_version": version("drjit"),
         "variant": r.variant,
         "fidelity": r.fidelity,
-        "integrator": "direct" if r.fidelity == "direct" else f"path (max_depth {setup.render.max_depth})",
+        "integrator": describe(setup, r.fidelity),
         "spp": r.spp,
+        "fidelity_choice": sim.choice.as_dict(),
+        "transport": ({**asdict(r.operator.info), "nonzeros": r.operator.nnz,
+                       "loaded_from_cache": r.loaded_from_cache} if r.fidelity == "transport" else None),
         "ambient_spp": setup.render.ambient_spp,
         "seeds": {"render": setup.render.seed, "frames": spec.seed,
                   "streams": STREAMS},

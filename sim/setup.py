@@ -142,7 +142,9 @@ class RenderConfig:
     """Light transport and sampling."""
 
     fidelity: str = "auto"
-    """``"auto"`` (direct for a diffuse plane, path otherwise), ``"direct"`` or ``"path"``."""
+    """``"auto"`` (measured: the cheapest level, and spp, whose error is below the camera's noise;
+    see :mod:`sim.fidelity`), ``"path"``, ``"direct"`` or ``"transport"`` (a light-transport
+    operator calibrated from direct renders at ``spp``)."""
     spp: int = 16
     """Samples per pixel of the projector contribution, 1..65536."""
     ambient_spp: int = 256
@@ -486,7 +488,7 @@ def _ambient(t: _Table) -> AmbientConfig:
 
 def _render(t: _Table) -> RenderConfig:
     return RenderConfig(
-        fidelity=t.choice("fidelity", ("auto", "direct", "path")),
+        fidelity=t.choice("fidelity", ("auto", "direct", "path", "transport")),
         spp=t.integer("spp", _SPP),
         ambient_spp=t.integer("ambient_spp", _SPP),
         max_depth=t.integer("max_depth", _Range(2)),
@@ -499,8 +501,8 @@ def _check_corner(setup: Setup, source: str, prefix: str) -> None:
     if setup.surface.geometry != "corner":
         return
     r = setup.render
-    if r.fidelity == "direct":
-        raise SetupError(f'{source}: {prefix}render.fidelity = "direct": expected "path" or "auto" for '
+    if r.fidelity in ("direct", "transport"):
+        raise SetupError(f'{source}: {prefix}render.fidelity = "{r.fidelity}": expected "path" or "auto" for '
                          f'{prefix}surface.geometry = "corner": a corner\'s wings light each other '
                          "(inter-reflection), which only path tracing renders")
     if r.max_depth < 3:

@@ -23,6 +23,7 @@ resolution = [64, 64]
 [camera]
 resolution = [64, 64]
 [render]
+fidelity = "direct"
 spp = 4
 ambient_spp = 16
 seed = {seed}

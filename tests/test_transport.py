@@ -1,0 +1,150 @@
+"""The light-transport operator: agreement with converged renders, exact linearity, defocus,
+caching, and clear refusals for what it cannot represent."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import tiny_setup
+from sim import projector
+from sim.capture import Simulator
+from sim.errors import SetupError
+from sim.fidelity import probe_frame
+from sim.render import Renderer
+from sim.setup import load_setup, scene_path
+from sim.transport import MAX_SPACING, TransportOperator, TransportRenderer, footprint_ranges
+
+SIZE = (64, 64)
+
+
+def _shipped(name: str):
+    """A shipped scene shrunk to a 64² projector and camera (same poses, optics and surface)."""
+    s = load_setup(scene_path(name))
+    return replace(s, projector=replace(s.projector, resolution=SIZE),
+                   camera=replace(s.camera, resolution=SIZE),
+                   surface=replace(s.surface, texture_resolution=128))
+
+
+@pytest.fixture(scope="module")
+def default_op():
+    """The planar default setup's operator, calibrated at 256 spp."""
+    setup = _shipped("default")
+    return setup, TransportRenderer(setup, 256)
+
+
+def _psnr(x: np.ndarray, ref: np.ndarray) -> float:
+    return float(10 * np.log10(ref.max() ** 2 / np.mean((x - ref) ** 2)))
+
+
+@pytest.mark.parametrize("kind", ["smooth", "stripes2"])
+def test_agrees_with_converged_direct_on_default_setup(default_op, kind):
+    """Transport vs a 1024-spp direct render: >= 40 dB in linear radiance (projector + ambient)."""
+    setup, tr = default_op
+    frame = probe_frame(kind, SIZE, seed=3)
+    ref = Renderer(setup, "direct", 1024)
+    want = ref.projector_radiance(tr.emit(frame), seed=11) + ref.ambient_radiance()
+    assert _psnr(tr.radiance(frame), want) >= 40.0
+
+
+def test_defocused_camera_and_projector_agree_with_converged_direct():
+    """The thin-lens camera widens each pixel's footprint; the operator still reproduces it."""
+    setup = _shipped("defocus")
+    tr = TransportRenderer(setup, 256)
+    frame = probe_frame("stripes2", SIZE, seed=4)
+    ref = Renderer(setup, "direct", 1024).projector_radiance(tr.emit(frame), seed=12)
+    assert _psnr(tr.projector_radiance(tr.emit(frame)), ref) >= 40.0
+
+
+def test_equals_direct_render_at_its_calibration_seed(default_op):
+    """The dot frames sum to any frame: T p is the direct render of p at the calibration spp and
+    seed, to float precision, even for independent random pixels."""
+    setup, tr = default_op
+    cal = Renderer(setup, "direct", tr.operator.info.spp)
+    x = np.random.default_rng(5).random((64, 64, 3), dtype=np.float32)
+    want = cal.projector_radiance(x, tr.operator.info.seed)
+    np.testing.assert_allclose(tr.projector_radiance(x), want, rtol=0, atol=1e-5 * want.max())
+
+
+def test_exactly_linear_and_batched(default_op):
+    """T (a + b) = T a + T b; the torch batch path equals the per-image NumPy path."""
+    _, tr = default_op
+    op = tr.operator
+    rng = np.random.default_rng(6)
+    a, b = (rng.random((64, 64, 3), dtype=np.float32) for _ in range(2))
+    lhs = op.project_image(a + b)
+    np.testing.assert_allclose(lhs, op.project_image(a) + op.project_image(b), rtol=1e-6, atol=1e-7)
+    batch = torch.from_numpy(np.stack([a, b])).permute(0, 3, 1, 2)
+    out = op.project(batch)
+    assert out.shape == (2, 3, 64, 64)
+    np.testing.assert_allclose(out[1].permute(1, 2, 0).numpy(), op.project_image(b), rtol=1e-5, atol=1e-7)
+    full = op.apply(batch[0])
+    np.testing.assert_allclose(full.permute(1, 2, 0).numpy(), op.project_image(a) + op.ambient,
+                               rtol=1e-5, atol=1e-7)
+
+
+def test_thin_line_has_the_defocus_blur_width():
+    """Head-on, camera pixel = projector pixel: a 1-pixel line spreads over the circle of confusion
+    of the projector lens. A line blurred by a disk of diameter D has variance D²/16 (plus 1/12
+    for its own width), so D = 4 sqrt(var - 1/12); it must match the geometry within 20 %."""
+    setup = tiny_setup(projector={"aperture": 0.2, "focus_distance": 0.8, "black_level": 0.0},
+                       camera={"position": [0.0, 0.0, 1.0], "fov": 30.0})
+    expected = projector.defocus_blur_diameter_px(0.2, 0.8, 1.0, 30.0, 64)
+    assert expected > 4
+    frame = np.zeros((64, 64, 3), np.uint8)
+    frame[:, 32] = 255
+    sim = Simulator(setup, SIZE, fidelity="transport", spp=16)
+    profile = sim.linear(frame, 0, 0)[24:40, :, 1].mean(axis=0)
+    x = np.arange(64) + 0.5
+    mean = (profile * x).sum() / profile.sum()
+    var = (profile * (x - mean) ** 2).sum() / profile.sum()
+    width = 4 * np.sqrt(var - 1 / 12)
+    assert abs(width - expected) <= 0.2 * expected
+    assert abs(mean - 32.5) < 0.1
+
+
+def test_operator_is_cached_per_setup(tmp_path, default_op):
+    setup, _ = default_op
+    first = TransportRenderer(setup, 4, cache_dir=tmp_path)
+    assert not first.loaded_from_cache and len(list(tmp_path.glob("transport_*.npz"))) == 1
+    again = TransportRenderer(setup, 4, cache_dir=tmp_path)
+    assert again.loaded_from_cache
+    x = np.random.default_rng(7).random((64, 64, 3), dtype=np.float32)
+    np.testing.assert_array_equal(first.projector_radiance(x), again.projector_radiance(x))
+    np.testing.assert_array_equal(first.ambient_radiance(), again.ambient_radiance())
+    assert again.operator.info == first.operator.info
+    other = TransportRenderer(setup, 16, cache_dir=tmp_path)  # another spp: another operator
+    assert not other.loaded_from_cache and len(list(tmp_path.glob("transport_*.npz"))) == 2
+
+
+def test_footprint_bounds_where_the_camera_pixel_lands():
+    """Identical optics, camera shifted by a quarter projector pixel in x and y (parallel axes):
+    camera pixel (row i, column j) covers projector [j + 1/4, j + 5/4] x [i + 1/4, i + 5/4], so
+    its range is columns j..j+1 and rows i..i+1 (clipped to the frame)."""
+    d = 0.25 * 2 * np.tan(np.radians(15)) / 64  # a quarter of a projector pixel at 1 m, metres
+    setup = tiny_setup(camera={"position": [d, -d, 1.0], "look_at": [d, -d, 0.0], "fov": 30.0})
+    lo, hi, seen = footprint_ranges(setup)
+    assert seen.all()
+    j, i = np.meshgrid(np.arange(64), np.arange(64))
+    np.testing.assert_array_equal(lo, np.stack([j, i], axis=-1))
+    np.testing.assert_array_equal(hi, np.minimum(lo + 1, 63))
+
+
+def test_declines_interreflection():
+    corner = tiny_setup(surface={"geometry": "corner", "size": [0.6, 1.0]},
+                        render={"fidelity": "path", "max_depth": 3})
+    with pytest.raises(SetupError, match="inter-reflection"):
+        TransportRenderer(corner, 4)
+    with pytest.raises(SetupError, match='fidelity "transport" cannot represent'):
+        Simulator(corner, SIZE, fidelity="transport")
+    with pytest.raises(SetupError, match='render.fidelity = "transport"'):
+        tiny_setup(surface={"geometry": "corner", "size": [0.6, 1.0]}, render={"fidelity": "transport"})
+
+
+def test_declines_footprints_too_wide_to_calibrate():
+    """An 8² camera over a 256² projector: each camera pixel covers ~25 projector pixels."""
+    setup = tiny_setup(camera={"resolution": [8, 8]}, projector={"resolution": [256, 256]})
+    with pytest.raises(SetupError, match=f"limit {MAX_SPACING ** 2}"):
+        TransportOperator.calibrate(Renderer(setup, "direct", 1))
