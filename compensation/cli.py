@@ -59,19 +59,69 @@ def add_render(sub) -> None:
     p.add_argument("--size", type=_size, default=(256, 256), help="canonical size N or WxH (default 256)")
     p.add_argument("--images", default=None, help="folder of your own projector frames (sorted by name)")
     p.add_argument("--frame-seed", type=int, default=0, help="seed of the frame generator (default 0)")
-    p.add_argument("--fidelity", choices=["direct", "path"], default=None,
-                   help="override the setup's rendering level")
+    p.add_argument("--fidelity", choices=["auto", "path", "direct", "transport"], default=None,
+                   help="override the setup's rendering level (auto: measure and pick the cheapest "
+                        "below the camera noise; transport: a light-transport operator calibrated "
+                        "once from direct renders at --spp)")
     p.add_argument("--spp", type=int, default=None, help="override the setup's samples per pixel")
     p.add_argument("--overwrite", action="store_true", help="replace a folder rendered from another setup")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_render)
 
 
+def _spp_list(text: str) -> tuple[int, ...]:
+    """Parse ``1,4,16`` into samples per pixel (each >= 1)."""
+    try:
+        values = tuple(int(t) for t in text.split(","))
+    except ValueError:
+        values = ()
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"spp {text!r}: expected comma-separated integers >= 1")
+    return values
+
+
+def cmd_bench_sim(args: argparse.Namespace) -> None:
+    from sim.bench_sim import bench_sim
+    from sim.fidelity import PROBE_CLASSES
+
+    classes = tuple(args.classes.split(",")) if args.classes else PROBE_CLASSES
+    unknown = [c for c in classes if c not in PROBE_CLASSES]
+    if unknown:
+        raise ProcamError(f"--classes {args.classes!r}: unknown {', '.join(unknown)}; expected "
+                          f"some of {', '.join(PROBE_CLASSES)}")
+    for setup in load_setups(args.setup):
+        files = bench_sim(setup, Path(args.out), reference_spp=args.ref_spp, classes=classes,
+                          window=args.window, spp=args.spp, repeats=args.repeats,
+                          progress=not args.quiet)
+        print(f"procam: {setup.name} -> {files['csv']}, {files['chart']}")
+        print(f"procam: {files['sentence']}")
+
+
+def add_bench_sim(sub) -> None:
+    p = sub.add_parser("bench-sim", help="speed vs accuracy of every fidelity level of a setup",
+                       description="Time every level x spp (path, direct, transport) and measure "
+                                   "its error against a converged path-traced reference on probe "
+                                   "frames (smooth, 1-2 px stripes, random pixels, natural); write "
+                                   "a chart with the camera noise floor and the auto choice, and a "
+                                   "CSV.")
+    p.add_argument("setup", help="setup or suite file, or a shipped scene name (default, corner, …)")
+    p.add_argument("--out", required=True, help="output folder for bench_sim_<setup>.{png,csv}")
+    p.add_argument("--ref-spp", type=int, default=1024, help="samples per pixel of the reference (1024)")
+    p.add_argument("--classes", default=None, help="comma-separated probe classes (default: all)")
+    p.add_argument("--window", type=int, default=None,
+                   help="render only a central camera window of N pixels a side (faster)")
+    p.add_argument("--spp", type=_spp_list, default=(1, 4, 16, 64, 256),
+                   help="comma-separated samples per pixel per level (default 1,4,16,64,256)")
+    p.add_argument("--repeats", type=int, default=3, help="timed captures per level x spp (3)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_bench_sim)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="procam", description="Physically simulated projector–camera "
                                      "testbed for projector photometric compensation.")
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (add_render,):
+    for add in (add_render, add_bench_sim):
         add(sub)
     return parser
 

@@ -19,6 +19,7 @@ well [0, 1] — the units of the camera's noise model, so they compare directly 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -246,6 +247,8 @@ class Probe:
     floors, floors_encoded : dict[str, float]
         The camera's RMS noise per class: linear signal units, and encoded values in [0, 1]
         (a real 8-bit noisy capture of the reference against its noiseless encoding).
+    reference_seconds : float
+        Wall time of one reference capture (both renders), seconds.
     """
 
     def __init__(self, setup: Setup, classes=PROBE_CLASSES, reference_spp: int = AUTO_REFERENCE_SPP,
@@ -262,10 +265,14 @@ class Probe:
         cfg = self.setup.camera
         self._reference = {}
         self.floors, self.floors_encoded = {}, {}
+        ref.projector_radiance(self._emit(next(iter(self.frames.values()))), 0)  # compile once
+        seconds = 0.0
         for i, (k, frame) in enumerate(self.frames.items()):
+            t0 = time.perf_counter()
             irr = self._emit(frame)
             halves = [ref.projector_radiance(irr, mitsuba_seed(setup.render.seed, _REFERENCE_STREAM, 2 * i + j))
                       for j in range(2)]
+            seconds += time.perf_counter() - t0
             self._reference[k] = [camera_signal(r + self._ambient, cfg) for r in halves]
             mean = 0.5 * (halves[0] + halves[1]) + self._ambient
             self.floors[k] = noise_floor(camera_signal(mean, cfg), cfg)
@@ -273,6 +280,7 @@ class Probe:
             noisy = camera.capture(mean, cfg, rng).astype(np.float64) / 255
             clean = camera.encode(camera_signal(mean, cfg).astype(np.float64), cfg.response)
             self.floors_encoded[k] = float(np.sqrt(np.mean((noisy - clean) ** 2)))
+        self.reference_seconds = seconds / len(self.frames)
 
     def errors(self, renderer: Renderer) -> dict[str, dict[str, float]]:
         """RMS error of a renderer's captures against the reference, per probe class.
@@ -288,18 +296,22 @@ class Probe:
         Returns
         -------
         dict
-            class -> ``{"rmse": linear signal units, "rmse_encoded": encoded values in [0, 1]}``,
-            both with the reference's own Monte-Carlo variance removed (:func:`unbiased_rmse`).
+            class -> ``{"rmse": linear signal units, "rmse_encoded": encoded values in [0, 1],
+            "seconds": wall time of the frame's emission and render}``, both errors with the
+            reference's own Monte-Carlo variance removed (:func:`unbiased_rmse`).
         """
         cfg = self.setup.camera
         out = {}
         for i, (k, frame) in enumerate(self.frames.items()):
+            t0 = time.perf_counter()
             rad = renderer.projector_radiance(self._emit(frame),
                                               mitsuba_seed(self.setup.render.seed, _PROBE_STREAM, i))
+            seconds = time.perf_counter() - t0
             sig = camera_signal(rad + self._ambient, cfg)
             a, b = self._reference[k]
             enc = [camera.encode(s.astype(np.float64), cfg.response) for s in (sig, a, b)]
-            out[k] = {"rmse": unbiased_rmse(sig, a, b), "rmse_encoded": unbiased_rmse(*enc)}
+            out[k] = {"rmse": unbiased_rmse(sig, a, b), "rmse_encoded": unbiased_rmse(*enc),
+                      "seconds": seconds}
         return out
 
 

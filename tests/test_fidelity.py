@@ -104,3 +104,39 @@ def test_dataset_records_the_choice_and_reuses_the_operator(tmp_path):
     out = write_setup(tmp_path, setup, replace(spec, n_train=3), progress=False)
     meta = json.loads((out / "meta.json").read_text())
     assert meta["transport"]["loaded_from_cache"] and meta["counts"]["train"] == 3
+
+
+SETUP_FILE = """
+name = "tinycli"
+[surface]
+texture = "noise"
+texture_resolution = 64
+[projector]
+resolution = [32, 32]
+[camera]
+resolution = [32, 32]
+[render]
+spp = 4
+ambient_spp = 16
+"""
+
+
+def test_cli_render_transport_and_bench_sim(tmp_path, capsys):
+    from compensation.cli import main
+
+    path = tmp_path / "tinycli.toml"
+    path.write_text(SETUP_FILE)
+    args = ["--size", "16", "--n-train", "1", "--n-test", "1", "--quiet"]
+    assert main(["render", str(path), "--out", str(tmp_path / "data"), "--fidelity", "transport", *args]) == 0
+    meta = json.loads((tmp_path / "data" / "tinycli" / "meta.json").read_text())
+    assert meta["fidelity"] == "transport" and meta["spp"] == 4 and meta["transport"]["spacing"] >= 1
+    assert meta["fidelity_choice"]["reason"] == "asked for (--fidelity)"
+
+    assert main(["bench-sim", str(path), "--out", str(tmp_path / "bench"), "--ref-spp", "64",
+                 "--classes", "smooth,stripes1", "--spp", "4,16", "--repeats", "1", "--quiet"]) == 0
+    rows = (tmp_path / "bench" / "bench_sim_tinycli.csv").read_text().splitlines()
+    assert rows[0].startswith("setup,level,spp,class,seconds_per_capture")
+    assert len(rows) == 1 + 3 * 2 * 2  # levels x spp x classes
+    assert (tmp_path / "bench" / "bench_sim_tinycli.png").stat().st_size > 10_000
+    assert "procam: for tinycli, transport at" in capsys.readouterr().out
+    assert main(["bench-sim", str(path), "--out", str(tmp_path / "bench"), "--classes", "stripes3"]) == 2
