@@ -25,12 +25,14 @@ def integrator_for(setup: Setup, fidelity: str) -> dict:
 
 
 def resolve_fidelity(setup: Setup) -> str:
-    """The rendering level used for a setup: ``auto`` is direct light for a plane (nothing on it
-    sees anything else) and path tracing when surfaces see each other (corner)."""
+    """The Mitsuba level for a setup when none is given: ``auto`` is direct light for a plane
+    (nothing on it sees anything else) and path tracing when surfaces see each other (corner);
+    ``transport`` is direct light, the level its operator is calibrated from. (The measured
+    ``auto`` of the Simulator and the operator itself live in :mod:`sim.fidelity`.)"""
     fid = setup.render.fidelity
     if fid == "auto":
         return "direct" if setup.surface.geometry == "plane" else "path"
-    return fid
+    return "direct" if fid == "transport" else fid
 
 
 def albedo_texture(setup: Setup) -> np.ndarray:
