@@ -44,7 +44,8 @@ def captures_per_second(setup, level: str | None, spp: int | None, n: int) -> di
         sim.warp(sim.raw(f, 50, k))
     total = time.perf_counter() - t0
     r = sim.renderer
-    return {"setup": setup.name, "level": r.fidelity, "spp": r.spp, "captures_per_s": n / total,
+    level = f"auto -> {r.fidelity}" if level == "auto" else r.fidelity
+    return {"setup": setup.name, "level": level, "spp": r.spp, "captures_per_s": n / total,
             "render_ms": 1000 * sim.timings["render"] / n, "camera_ms": 1000 * sim.timings["camera"] / n,
             "one_time_s": setup_s,
             "calibration_s": r.operator.info.seconds if r.fidelity == "transport" else None}

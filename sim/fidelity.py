@@ -248,7 +248,8 @@ class Probe:
         The camera's RMS noise per class: linear signal units, and encoded values in [0, 1]
         (a real 8-bit noisy capture of the reference against its noiseless encoding).
     reference_seconds : float
-        Wall time of one reference capture (both renders), seconds.
+        Wall time of one reference capture (both renders), seconds; the first frame, which
+        compiles the kernels, is left out when there are others.
     """
 
     def __init__(self, setup: Setup, classes=PROBE_CLASSES, reference_spp: int = AUTO_REFERENCE_SPP,
@@ -265,14 +266,13 @@ class Probe:
         cfg = self.setup.camera
         self._reference = {}
         self.floors, self.floors_encoded = {}, {}
-        ref.projector_radiance(self._emit(next(iter(self.frames.values()))), 0)  # compile once
-        seconds = 0.0
+        seconds = []
         for i, (k, frame) in enumerate(self.frames.items()):
             t0 = time.perf_counter()
             irr = self._emit(frame)
-            halves = [ref.projector_radiance(irr, mitsuba_seed(setup.render.seed, _REFERENCE_STREAM, 2 * i + j))
-                      for j in range(2)]
-            seconds += time.perf_counter() - t0
+            halves = [ref.projector_radiance(irr, mitsuba_seed(setup.render.seed, _REFERENCE_STREAM,
+                                                               2 * i + j)) for j in range(2)]
+            seconds.append(time.perf_counter() - t0)
             self._reference[k] = [camera_signal(r + self._ambient, cfg) for r in halves]
             mean = 0.5 * (halves[0] + halves[1]) + self._ambient
             self.floors[k] = noise_floor(camera_signal(mean, cfg), cfg)
@@ -280,7 +280,7 @@ class Probe:
             noisy = camera.capture(mean, cfg, rng).astype(np.float64) / 255
             clean = camera.encode(camera_signal(mean, cfg).astype(np.float64), cfg.response)
             self.floors_encoded[k] = float(np.sqrt(np.mean((noisy - clean) ** 2)))
-        self.reference_seconds = seconds / len(self.frames)
+        self.reference_seconds = float(np.mean(seconds[1:] or seconds))  # the first one compiles
 
     def errors(self, renderer: Renderer) -> dict[str, dict[str, float]]:
         """RMS error of a renderer's captures against the reference, per probe class.
@@ -401,15 +401,16 @@ def choose(setup: Setup, spp: int | None = None, n_captures: int = DATASET_CAPTU
     ladder = (int(spp),) if spp else SPP_LADDER
     inter = has_interreflection(setup)
     level = "path" if inter else "transport"
-    if level == "transport":
-        lo, hi, seen = transport.footprint_ranges(setup)
-        s = transport.dot_spacing(lo, hi, seen)
+    if inter:
+        why_level = f"its surfaces light each other: path tracing (depth {setup.render.max_depth})"
+    else:
+        s = transport.dot_spacing(*transport.footprint_ranges(setup))
         if s > transport.MAX_SPACING or s * s + 1 >= n_captures:
             level = "direct"
-    why_level = ("its surfaces light each other: path tracing (depth "
-                 f"{setup.render.max_depth})" if inter else
-                 "no surface sees another: direct light is exact" + (
-                     ", applied as a light-transport operator" if level == "transport" else ""))
+        why_level = "no surface sees another: direct light is exact, " + (
+            f"applied as a light-transport operator ({s * s} calibration renders)"
+            if level == "transport" else
+            f"rendered per capture (a transport calibration would take {s * s} renders)")
     candidates = []
     for n in ladder:
         errs = probe.errors(make_renderer(probe.setup, level, n))
@@ -423,8 +424,8 @@ def choose(setup: Setup, spp: int | None = None, n_captures: int = DATASET_CAPTU
                           f"{cls}, {frac:.2f} x)", errs[cls]["rmse"], probe.floors[cls],
                           tuple(candidates))
     return Choice(level, ladder[-1], f"{why_level}; no spp tried reaches {FLOOR_FRACTION:g} x the "
-                  f"camera noise (worst: {cls}, {frac:.2f} x at {ladder[-1]} spp): using the most samples tried",
-                  errs[cls]["rmse"], probe.floors[cls], tuple(candidates))
+                  f"camera noise (worst: {cls}, {frac:.2f} x at {ladder[-1]} spp): using the most "
+                  "samples tried", errs[cls]["rmse"], probe.floors[cls], tuple(candidates))
 
 
 def resolve(setup: Setup, fidelity: str | None = None, spp: int | None = None,
