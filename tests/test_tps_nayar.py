@@ -1,0 +1,326 @@
+"""compensation.tps and compensation.nayar: the per-pixel baselines against planted models,
+scipy's RBFInterpolator, and the training registry on the tiny synthetic setup."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from scipy.interpolate import RBFInterpolator
+
+from compensation import nayar, tps
+from compensation.data import PairSet, SetupData, load_setup_data
+from compensation.methods import get_method
+from compensation.train import TrainConfig, load_run, train_run
+from sim.errors import ProcamError
+from synthetic import make_dataset
+
+STATE = {"tps": tps.STATE_FILE, "tps-textured": tps.STATE_FILE, "nayar": nayar.STATE_FILE}
+
+
+def grid(levels: int) -> np.ndarray:
+    """The plain colours: ``levels``³ RGB values on a regular grid in [0, 1], (levels³, 3)."""
+    lv = np.linspace(0.0, 1.0, levels)
+    return np.stack(np.meshgrid(lv, lv, lv, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def planted_capture(p: np.ndarray, pixels: int, bend, seed: int = 0) -> np.ndarray:
+    """c = A_pix · bend(p) + b_pix: a smooth invertible per-pixel colour map with mild mixing."""
+    rng = np.random.default_rng(seed)
+    a = 0.6 * np.eye(3) + rng.uniform(0.0, 0.08, (pixels, 3, 3))
+    b = rng.uniform(0.02, 0.1, (pixels, 1, 3))
+    return np.einsum("pij,pmj->pmi", a, bend(p)) + b
+
+
+def spline_at(points: np.ndarray, centres: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
+    return tps.evaluate_splines(torch.tensor(points), torch.tensor(centres), torch.tensor(coeffs)).numpy()
+
+
+# --- thin-plate splines -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("smoothing", [0.0, tps.SMOOTHING])
+def test_tps_equals_scipy_rbf_interpolator(smoothing):
+    """The fit is scipy's RBFInterpolator(kernel="thin_plate_spline", degree=1, smoothing=λ)."""
+    rng = np.random.default_rng(1)
+    centres = rng.random((3, 40, 3))
+    values = rng.random((3, 40, 3))
+    queries = rng.random((3, 25, 3))
+    coeffs, _, degenerate = tps.fit_pixel_splines(centres, values, smoothing)
+    ours = spline_at(queries, centres, coeffs)
+    assert degenerate == 0
+    for p in range(3):
+        ref = RBFInterpolator(centres[p], values[p], kernel="thin_plate_spline", smoothing=smoothing,
+                              degree=1)
+        np.testing.assert_allclose(ours[p], ref(queries[p]), rtol=0, atol=1e-9)
+
+
+def test_tps_interpolates_samples_exactly_without_smoothing():
+    p = np.broadcast_to(grid(5), (4, 125, 3)).copy()
+    c = planted_capture(p, 4, lambda q: q ** 1.3)
+    coeffs, residual, _ = tps.fit_pixel_splines(c, p, 0.0)
+    np.testing.assert_allclose(spline_at(c, c, coeffs), p, rtol=0, atol=1e-9)
+    assert residual < 1e-9
+
+
+def test_tps_reproduces_affine_maps_exactly_with_smoothing():
+    """Affine maps have zero bending energy: smoothing leaves them untouched."""
+    rng = np.random.default_rng(2)
+    c = rng.random((2, 60, 3))
+    m, b = rng.normal(size=(2, 3, 3)), rng.normal(size=(2, 1, 3))
+    affine = lambda x: np.einsum("pij,pmj->pmi", m, x) + b  # noqa: E731
+    coeffs, residual, _ = tps.fit_pixel_splines(c, affine(c), smoothing=0.1)
+    q = rng.random((2, 30, 3)) * 1.5 - 0.25  # inside and outside the samples' hull
+    np.testing.assert_allclose(spline_at(q, c, coeffs), affine(q), rtol=0, atol=1e-9)
+    assert residual < 1e-9
+
+
+def test_tps_reproduces_smooth_colour_map_from_plain_colours():
+    """8×8 pixels, 5³ plain colours, c = A_pix (p + 0.05 p(1 − p)) + b_pix: inverse within 1e-3.
+
+    (A power law p^1.3 cannot be interpolated that closely from 5 levels per channel by any
+    kernel: about 2e-2, see the next test.)
+    """
+    bend = lambda q: q + 0.05 * q * (1 - q)  # noqa: E731
+    p = np.broadcast_to(grid(5), (64, 125, 3)).copy()
+    c = planted_capture(p, 64, bend)
+    coeffs, _, _ = tps.fit_splines(c.astype(np.float32), p.astype(np.float32), 0.0, workers=1)
+    held_out = np.random.default_rng(3).uniform(0.1, 0.9, (64, 200, 3))
+    got = spline_at(planted_capture(held_out, 64, bend), c, coeffs.astype(np.float64))
+    assert np.abs(got - held_out).max() < 1e-3
+
+
+def test_tps_error_shrinks_with_denser_colour_samples():
+    bend = lambda q: q ** 1.3  # noqa: E731
+    held_out = np.random.default_rng(4).uniform(0.1, 0.9, (2, 300, 3))
+    errors = []
+    for levels in (5, 9):
+        p = np.broadcast_to(grid(levels), (2, levels ** 3, 3)).copy()
+        c = planted_capture(p, 2, bend)
+        coeffs, _, _ = tps.fit_pixel_splines(c, p, 0.0)
+        errors.append(np.abs(spline_at(planted_capture(held_out, 2, bend), c, coeffs) - held_out).max())
+    assert errors[1] < 0.5 * errors[0]
+    assert errors[1] < 1e-2
+
+
+def test_tps_worker_pool_matches_one_process(monkeypatch):
+    """Chunks solved by 2 forked workers come back in pixel order, equal to the in-process fit."""
+    monkeypatch.setattr(tps, "_TASK_SIZE", 5 * 129 ** 2)  # 5 pixels per task
+    rng = np.random.default_rng(5)
+    p = np.broadcast_to(grid(5), (23, 125, 3)).astype(np.float32)
+    noise = rng.normal(0, 0.002, (23, 125, 3))
+    c = (planted_capture(p, 23, lambda q: q ** 2.2) + noise).astype(np.float32)
+    pooled, residual, degenerate = tps.fit_splines(c, p, tps.SMOOTHING, workers=2)
+    alone, alone_residual, _ = tps.fit_pixel_splines(c, p, tps.SMOOTHING)
+    np.testing.assert_array_equal(pooled, alone.astype(np.float32))
+    assert residual == pytest.approx(alone_residual / c.size, rel=1e-12)
+    assert degenerate == 0
+
+
+def test_tps_degenerate_pixel_falls_back_to_least_squares():
+    """A pixel that always captures one colour (e.g. unseen) maps it to the mean sample."""
+    c = np.full((1, 125, 3), 0.3)
+    p = grid(5)[None]
+    coeffs, _, degenerate = tps.fit_pixel_splines(c, p, tps.SMOOTHING)
+    assert degenerate == 1
+    np.testing.assert_allclose(spline_at(c[:, :1], c, coeffs), [[[0.5, 0.5, 0.5]]], atol=1e-9)
+
+
+def test_tps_survives_a_channel_that_never_varies():
+    """A surface without blue: the blue capture is constant, the affine part is rank deficient;
+    the least-squares fit reproduces the map in the red–green plane and barely extrapolates
+    along blue."""
+    rg = grid(5)[::5, :2]  # the 25 (r, g) levels
+    for blue in (0.0, 5 / 255):
+        c = np.concatenate([rg, np.full((25, 1), blue)], axis=1)[None]
+        p = np.concatenate([rg, np.full((25, 1), 0.5)], axis=1)[None]  # affine in (r, g)
+        coeffs, _, degenerate = tps.fit_pixel_splines(c, p, tps.SMOOTHING)
+        assert degenerate == 1
+        np.testing.assert_allclose(spline_at(c, c, coeffs), p, atol=1e-9)
+        off_plane = spline_at(c + np.array([0.0, 0.0, 0.2]), c, coeffs)
+        assert np.abs(off_plane - p).max() < 0.01
+
+
+def test_tps_condition_estimate_catches_collinear_colours():
+    """Captures only on the gray axis (5 levels for the 125 plain colours): LU finds no zero pivot
+    (it returns coefficients of about 1e16), but the condition estimate sends the pixel to least
+    squares, which maps each gray level to its mean projector colour."""
+    c = np.repeat(grid(5)[:, :1], 3, axis=1)[None]
+    coeffs, _, degenerate = tps.fit_pixel_splines(c, grid(5)[None], tps.SMOOTHING)
+    assert degenerate == 1
+    assert np.abs(coeffs).max() < 1e3
+    expected = np.stack([c[0, :, 0], np.full(125, 0.5), np.full(125, 0.5)], axis=1)[None]
+    np.testing.assert_allclose(spline_at(c, c, coeffs), expected, atol=1e-6)
+
+
+def test_tps_rejects_bad_samples():
+    with pytest.raises(ValueError, match="one shape"):
+        tps.fit_splines(np.zeros((2, 10, 3)), np.zeros((2, 9, 3)))
+    with pytest.raises(ValueError, match="smoothing"):
+        tps.fit_splines(np.zeros((2, 10, 3)), np.zeros((2, 10, 3)), smoothing=-1.0)
+
+
+# --- colour mixing (Nayar et al.) ---------------------------------------------------------------
+
+GAMMA = np.array([2.2, 1.8, 2.0])
+
+
+def planted_mixing(pixels: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel V (diagonal-dominant, with crosstalk) and o keeping captures inside (0, 1)."""
+    rng = np.random.default_rng(seed)
+    v = np.diag([0.6, 0.55, 0.5]) + rng.uniform(0.0, 0.1, (pixels, 3, 3))
+    o = rng.uniform(0.03, 0.12, (pixels, 3))
+    return v, o
+
+
+def plain_images(h: int, w: int, v: np.ndarray, o: np.ndarray, clip: bool = False):
+    """The 125 uniform plain frames (125, 3, h, w) and their planted captures, float64."""
+    x = grid(5)
+    lin = np.broadcast_to(x ** GAMMA, (h * w, 125, 3))
+    c = np.einsum("pij,pmj->pmi", v, lin) + o[:, None]
+    if clip:
+        c = np.clip(c, 0.0, 1.0)
+    frames = torch.tensor(x).T[None, :, :, None, None].expand(1, 3, 125, h, w)[0].permute(1, 0, 2, 3)
+    captures = torch.tensor(c).reshape(h, w, 125, 3).permute(2, 3, 0, 1)
+    return frames.contiguous(), captures.contiguous()
+
+
+def test_nayar_recovers_gamma_matrix_and_offset_exactly():
+    v, o = planted_mixing(12)
+    frames, captures = plain_images(3, 4, v, o)
+    gamma = nayar.estimate_gamma(captures, frames)
+    np.testing.assert_allclose(gamma, GAMMA, rtol=0, atol=1e-9)
+    lin = torch.from_numpy(tps.pixel_samples(frames)).double() ** torch.from_numpy(gamma)
+    per_pixel = captures.permute(2, 3, 0, 1).reshape(12, 125, 3)
+    matrix, offset = nayar.fit_mixing(lin, per_pixel)
+    np.testing.assert_allclose(matrix.numpy(), v, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(offset.numpy(), o, rtol=0, atol=1e-6)
+
+
+def test_nayar_leaves_clipped_samples_out():
+    """Bright pixels saturate the camera for some plain colours; the unclipped ones still pin V, o."""
+    v, o = planted_mixing(6, seed=1)
+    v *= 1.6  # white now captures above 1 in every channel
+    _, captures = plain_images(2, 3, v, o, clip=True)
+    per_pixel = captures.permute(2, 3, 0, 1).reshape(6, 125, 3)
+    assert (per_pixel >= nayar.CLIP_HIGH).any(dim=1).all()
+    lin = torch.tensor(np.broadcast_to(grid(5) ** GAMMA, (6, 125, 3)).copy())
+    matrix, offset = nayar.fit_mixing(lin, per_pixel)
+    np.testing.assert_allclose(matrix.numpy(), v, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(offset.numpy(), o, rtol=0, atol=1e-6)
+
+
+def setup_data(frames: torch.Tensor, captures: torch.Tensor) -> SetupData:
+    """A SetupData whose ref pairs are the plain colours (plus a gray frame); the rest is unused."""
+    gray = torch.full_like(frames[:1], 0.5)
+    pairs = PairSet(captures.float(), frames.float())
+    ref = PairSet(torch.cat([captures, captures[:1]]).float(), torch.cat([frames, gray]).float())
+    return SetupData("planted", None, pairs, pairs, ref, captures[:1].float())
+
+
+def test_nayar_compensates_in_gamut_targets_exactly():
+    h, w = 3, 4
+    v, o = planted_mixing(h * w, seed=2)
+    method = nayar.NayarMethod("cpu")
+    method.fit(setup_data(*plain_images(h, w, v, o)), TrainConfig(method="nayar", device="cpu"),
+               progress=False)
+    wanted = np.random.default_rng(6).uniform(0.05, 0.95, (h * w, 5, 3))  # projector inputs
+    desired = np.einsum("pij,pmj->pmi", v, wanted ** GAMMA) + o[:, None]
+    desired = torch.tensor(desired, dtype=torch.float32).reshape(h, w, 5, 3).permute(2, 3, 0, 1)
+    got = method.predict(desired, desired[:1])
+    expected = torch.tensor(wanted, dtype=torch.float32).reshape(h, w, 5, 3).permute(2, 3, 0, 1)
+    assert got.dtype == torch.float32 and got.shape == (5, 3, h, w)
+    torch.testing.assert_close(got, expected, rtol=0, atol=2e-5)  # float32 captures
+    np.testing.assert_allclose(method.gamma.numpy(), GAMMA, rtol=0, atol=1e-4)
+
+
+def test_nayar_needs_the_primary_ramps():
+    levels = grid(5)
+    keep = ~((levels[:, 1] == 0) & (levels[:, 2] == 0) & (levels[:, 0] > 0) & (levels[:, 0] < 1))
+    with pytest.raises(ProcamError, match="ramp of primary R"):
+        nayar.primary_ramps(levels[keep])
+
+
+# --- through the registry -----------------------------------------------------------------------
+
+def fit_config(method: str) -> TrainConfig:
+    return TrainConfig(method=method, iters=1, batch=8, eval_batch=3, device="cpu", n_train=None,
+                       n_test=None)
+
+
+@pytest.fixture(scope="module")
+def setup_dir(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("data"))
+
+
+@pytest.fixture(scope="module")
+def data(setup_dir):
+    return load_setup_data(setup_dir)
+
+
+@pytest.mark.parametrize("name", ["tps", "tps-textured", "nayar"])
+def test_method_trains_into_a_run_and_beats_uncompensated(name, setup_dir, data, tmp_path):
+    """The synthetic setup (capture = 0.15 + 0.7 · frame · albedo) is per-pixel affine, so every
+    baseline compensates it up to 8-bit quantisation."""
+    out = tmp_path / name
+    metrics = train_run(setup_dir, fit_config(name), out, progress=False)
+    written = {p.name for p in out.iterdir()}
+    assert {"config.json", "metrics.json", "loss.csv", "examples.png", STATE[name]} <= written
+    assert json.loads((out / "metrics.json").read_text()) == metrics
+    assert metrics["psnr"] > metrics["uncompensated"]["psnr"] + 20
+    assert metrics["psnr"] > 45
+    assert metrics["batch"] == (16 if name == "tps-textured" else 125)
+
+    method, config = load_run(out, "cpu")
+    assert type(method) is get_method(name) and config["train"]["method"] == name
+    fresh = get_method(name)("cpu")
+    fresh.fit(data, fit_config(name), progress=False)
+    torch.testing.assert_close(method.predict(data.test.captures, data.surface),
+                               fresh.predict(data.test.captures, data.surface), rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("name", ["tps", "nayar"])
+def test_save_load_round_trip_is_identical(name, data, tmp_path):
+    method = get_method(name)("cpu")
+    method.fit(data, fit_config(name), progress=False)
+    method.save(tmp_path)
+    loaded = get_method(name).load(tmp_path, "cpu")
+    before = method.predict(data.test.captures, data.surface, batch_size=3)
+    assert torch.equal(before, loaded.predict(data.test.captures, data.surface, batch_size=3))
+    # Another batch size regroups the float32 products: equal up to rounding.
+    torch.testing.assert_close(before, loaded.predict(data.test.captures, data.surface, batch_size=2),
+                               rtol=0, atol=1e-6)
+    assert before.min() >= 0 and before.max() <= 1
+
+
+@pytest.mark.parametrize("name", ["tps", "nayar"])
+def test_load_refuses_pickles_and_bad_shapes(name, tmp_path):
+    path = tmp_path / STATE[name]
+    np.savez(path, centres=np.array([{"x": 1}], dtype=object), gamma=np.array([{"x": 1}], dtype=object))
+    with pytest.raises(ProcamError, match=str(path)):
+        get_method(name).load(tmp_path, "cpu")
+    arrays = ({"centres": np.zeros((4, 5, 3)), "coeffs": np.zeros((4, 8, 3)), "size": np.array([2, 2]),
+               "smoothing": np.float64(0.01)} if name == "tps" else
+              {"gamma": np.ones(3), "matrix": np.zeros((4, 3, 3)), "offset": np.zeros((3, 3)),
+               "size": np.array([2, 2])})
+    np.savez(path, **arrays)
+    with pytest.raises(ProcamError, match="inconsistent shapes"):
+        get_method(name).load(tmp_path, "cpu")
+
+
+def test_predict_checks_the_image_size(data):
+    method = get_method("nayar")("cpu")
+    method.fit(data, fit_config("nayar"), progress=False)
+    with pytest.raises(ProcamError, match="fitted for"):
+        method.predict(data.test.captures[:, :, :16], data.surface)
+
+
+def test_tps_textured_takes_a_seeded_subset_beyond_max_samples(data):
+    method = tps.TPSTexturedMethod("cpu", max_samples=8)
+    first = method.training_pairs(data, fit_config("tps-textured"))
+    again = method.training_pairs(data, fit_config("tps-textured"))
+    assert len(first) == 8 and torch.equal(first.captures, again.captures)
+    rows = {tuple(f.flatten()[:64].tolist()) for f in data.train.frames}
+    assert all(tuple(f.flatten()[:64].tolist()) in rows for f in first.frames)
+    every = tps.TPSTexturedMethod("cpu").training_pairs(data, fit_config("tps-textured"))
+    assert len(every) == len(data.train)
