@@ -14,8 +14,9 @@ STAMP  := $(VENV)/.procam-installed
 demo: venv llvm
 	$(VENV)/bin/procam demo --out data
 
+# Passive OpenMP waiting: with spinning threads torch slows down 10-30x when the cores are shared.
 test: venv llvm
-	$(PY) -m pytest -q
+	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q
 
 bench: venv llvm
 	$(PY) benchmarks/render.py

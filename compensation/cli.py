@@ -117,11 +117,164 @@ def add_bench_sim(sub) -> None:
     p.set_defaults(func=cmd_bench_sim)
 
 
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive integer")
+    return value
+
+
+def _int_list(text: str) -> tuple[int, ...]:
+    return tuple(_positive(t) for t in text.split(","))
+
+
+def _training_options(p: argparse.ArgumentParser) -> None:
+    """Options that override a training profile (every TrainConfig value)."""
+    p.add_argument("--profile", choices=["quick", "paper"], default="quick",
+                   help="quick: CPU-sized; paper: 256², 500 pairs, 1000 iterations, batch 64")
+    p.add_argument("--iters", type=_positive, help="optimiser steps")
+    p.add_argument("--batch", type=_positive, help="training pairs per step")
+    p.add_argument("--lr", type=float, help="Adam learning rate (paper 1e-3)")
+    p.add_argument("--weight-decay", type=float, help="Adam weight decay (paper 1e-4)")
+    p.add_argument("--lr-step", type=_positive, help="decay the learning rate every N steps (800)")
+    p.add_argument("--lr-gamma", type=float, help="learning-rate decay factor (0.2)")
+    p.add_argument("--loss", choices=["l1", "l2", "ssim", "l1+ssim"], help="training loss")
+    p.add_argument("--seed", type=int, help="seed of initialisation and batch order (0)")
+    p.add_argument("--device", help="auto (default), cpu or cuda[:N]")
+    p.add_argument("--amp", action="store_true", default=None, help="mixed precision (CUDA only)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _overrides(args: argparse.Namespace, *names: str) -> dict:
+    keys = ("iters", "batch", "lr", "weight_decay", "lr_step", "lr_gamma", "loss", "seed",
+            "device", "amp") + names
+    return {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
+
+
+def cmd_train(args: argparse.Namespace) -> None:
+    from compensation.train import make_config, train_run
+
+    cfg = make_config(args.profile, method=args.method, init=args.init,
+                      **_overrides(args, "n_train", "n_test"))
+    metrics = train_run(args.setup_dir, cfg, args.out, progress=not args.quiet, overwrite=args.overwrite)
+    print(f"procam: {args.method} on {metrics['setup']} -> {args.out}")
+    print(f"  surrogate test: PSNR {metrics['psnr']:.2f} dB, RMSE {metrics['rmse']:.4f}, "
+          f"SSIM {metrics['ssim']:.4f} (uncompensated PSNR {metrics['uncompensated']['psnr']:.2f} dB)")
+
+
+def add_train(sub) -> None:
+    from compensation.methods import METHODS
+
+    p = sub.add_parser("train", help="train a compensation method on a rendered setup",
+                       description="Train a method on DATA_ROOT/<setup> and write a run directory.")
+    p.add_argument("setup_dir", help="a rendered setup folder, e.g. data/default")
+    p.add_argument("--method", default="compennet", choices=sorted(METHODS))
+    p.add_argument("--out", required=True, help="run directory to create")
+    p.add_argument("--n-train", type=_positive, help="training pairs (first N)")
+    p.add_argument("--n-test", type=_positive, help="test pairs (first N)")
+    p.add_argument("--init", help="run directory to initialise the weights from (pre-training)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing run")
+    _training_options(p)
+    p.set_defaults(func=cmd_train)
+
+
+def cmd_compensate(args: argparse.Namespace) -> None:
+    import cv2
+    import numpy as np
+    import torch
+
+    from compensation.train import compensate, load_run
+    from sim.pngio import read_png, to_uint8, write_png
+
+    _, config = load_run(args.run)
+    h, w = config["image_size"]
+    images = []
+    for path in args.desired:
+        img = read_png(path)
+        if img.shape[:2] != (h, w):
+            img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+        images.append(img)
+    desired = torch.from_numpy(np.stack(images).astype(np.float32) / 255).permute(0, 3, 1, 2)
+    frames = compensate(args.run, desired).permute(0, 2, 3, 1).numpy()
+    out = Path(args.out)
+    targets = [out] if len(args.desired) == 1 and out.suffix == ".png" else \
+        [out / Path(p).with_suffix(".png").name for p in args.desired]
+    for target, frame in zip(targets, frames):
+        write_png(target, to_uint8(frame))
+        print(f"procam: projector frame -> {target}")
+
+
+def add_compensate(sub) -> None:
+    p = sub.add_parser("compensate", help="the projector frame that shows a desired image",
+                       description="x* = π†(y): the frame to send to the projector so that the "
+                                   "setup of a trained run shows the desired image y.")
+    p.add_argument("run", help="a run directory written by `procam train`")
+    p.add_argument("desired", nargs="+", help="desired image(s) (PNG/JPEG), resized to the run's size")
+    p.add_argument("--out", required=True, help="output PNG (one image) or folder")
+    p.set_defaults(func=cmd_compensate)
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    from compensation.benchmark import BenchConfig, run_bench
+
+    suite = load_setups(args.suite)
+    white = load_setups(args.white)[0] if "2" in args.tables else None
+    cfg = BenchConfig(profile=args.profile, methods=tuple(args.methods.split(",")),
+                      sizes=args.sizes, tables=tuple(args.tables.split(",")), size=args.size,
+                      n_test=args.n_test, overrides=_overrides(args), closed_loop=args.closed_loop)
+    files = run_bench(suite[:args.limit] if args.limit else suite, Path(args.out), cfg,
+                      Path(args.data) if args.data else None, white, progress=not args.quiet)
+    for name, path in files.items():
+        print(f"procam: {name} -> {path}")
+    for name in ("table1", "table2", "table3"):
+        if name in files:
+            print(Path(files[name]).read_text())
+
+
+def add_bench(sub) -> None:
+    p = sub.add_parser("bench", help="the paper's tables over a suite of setups",
+                       description="Render what is missing, train every method x size x setup, "
+                                   "evaluate, and write Tables 1-3 (Markdown and CSV). Resumable.")
+    p.add_argument("suite", help="suite or setup file, or a shipped scene name (suite)")
+    p.add_argument("--out", required=True, help="output folder (runs, tables)")
+    p.add_argument("--data", help="dataset root (default OUT/data)")
+    p.add_argument("--methods", default="compennet,compennet-nosurf", help="comma-separated methods")
+    p.add_argument("--sizes", type=_int_list, default=(125, 250, 500), help="training sizes, e.g. 125,250,500")
+    p.add_argument("--tables", default="1,2,3", help="which tables (default 1,2,3)")
+    p.add_argument("--size", type=_positive, help="canonical size override (pixels)")
+    p.add_argument("--n-test", type=_positive, help="test pairs override")
+    p.add_argument("--white", default="white", help="white-surface setup for pre-training (Table 2)")
+    p.add_argument("--limit", type=_positive, help="only the first N setups of the suite")
+    p.add_argument("--closed-loop", action="store_true",
+                   help="also project every compensation back through the setup and score it")
+    _training_options(p)
+    p.set_defaults(func=cmd_bench)
+
+
+def cmd_demo(args: argparse.Namespace) -> None:
+    from compensation.demo import run_demo
+
+    run_demo(Path(args.out), progress=not args.quiet)
+
+
+def add_demo(sub) -> None:
+    p = sub.add_parser("demo", help="the whole pipeline on embedded defaults (minutes on a CPU)",
+                       description="Render the default setup (quick profile), train CompenNet, "
+                                   "evaluate (surrogate and closed loop), print the table and "
+                                   "write a figure.")
+    p.add_argument("--out", default="out", help="output folder (default: out)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_demo)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="procam", description="Physically simulated projector–camera "
                                      "testbed for projector photometric compensation.")
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (add_render, add_bench_sim):
+    for add in (add_render, add_bench_sim, add_train, add_compensate, add_bench, add_demo):
         add(sub)
     return parser
 

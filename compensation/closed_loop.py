@@ -1,0 +1,133 @@
+"""The measurement no real benchmark can make: project x* = π†(y) back through the same simulated
+setup and score what the camera sees against the desired image y.
+
+Also the model-free iterative feedback refinement of Nayar et al. (project, capture, correct the
+frame by the error, repeat) and the physically reachable bound: pixels where y lies outside what
+the projector can produce on that surface (between the captures of a black and a white frame).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from compensation.data import SetupData
+from compensation.metrics import evaluate
+from sim.capture import Simulator
+from sim.errors import DatasetError
+from sim.pngio import to_uint8
+from sim.setup import load_setup
+
+CLOSED_LOOP_STREAM = 16
+"""First seed stream of closed-loop captures (the dataset uses 0–3); refinement uses the next."""
+REACH_TOLERANCE = 2 / 255
+"""Slack (encoded units) for the reachable test: two 8-bit levels of camera noise."""
+
+
+def simulator_for(setup_dir: str | Path) -> Simulator:
+    """The simulator a dataset was rendered with: its resolved ``setup.toml`` plus the canonical
+    size, fidelity and spp recorded in ``meta.json``."""
+    setup_dir = Path(setup_dir)
+    try:
+        meta = json.loads((setup_dir / "meta.json").read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{setup_dir / 'meta.json'}: cannot read ({exc})") from None
+    setup = load_setup(setup_dir / "setup.toml")
+    return Simulator(setup, tuple(meta["size"]), meta.get("fidelity"), meta.get("spp"))
+
+
+def project(sim: Simulator, frames: torch.Tensor, stream: int) -> torch.Tensor:
+    """Send projector frames through the simulated setup.
+
+    Parameters
+    ----------
+    sim : Simulator
+        The setup's simulator.
+    frames : torch.Tensor
+        float32 (N, 3, H, W) in [0, 1]; rounded to 8 bits as a projector input is.
+    stream : int
+        Seed stream of these captures (fresh noise per stream and frame).
+
+    Returns
+    -------
+    torch.Tensor
+        Captures in the canonical view, float32 (N, 3, H, W) in [0, 1].
+    """
+    stack = to_uint8(frames.permute(0, 2, 3, 1).cpu().numpy())
+    caps = sim.capture(stack, stream)
+    return torch.from_numpy(caps.astype(np.float32) / 255.0).permute(0, 3, 1, 2).contiguous()
+
+
+def reachable_mask(data: SetupData, desired: torch.Tensor) -> torch.Tensor:
+    """Pixels whose desired value the projector can produce on that surface.
+
+    A pixel is reachable when every channel of y lies between the captures of the black (0001)
+    and white (0125) plain frames, within :data:`REACH_TOLERANCE`.
+
+    Returns
+    -------
+    torch.Tensor
+        bool (N, H, W).
+    """
+    black, white = data.ref.captures[0:1], data.ref.captures[124:125]
+    ok = (desired >= black - REACH_TOLERANCE) & (desired <= white + REACH_TOLERANCE)
+    return ok.all(dim=1)
+
+
+def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
+                batch_size: int = 64) -> dict:
+    """Closed-loop score of a fitted method.
+
+    Parameters
+    ----------
+    method : compensation.methods.Method
+        A fitted method.
+    data : SetupData
+        The setup's data (surface s̃; test frames are the desired images by default).
+    sim : Simulator
+        The same setup's simulator.
+    desired : torch.Tensor, optional
+        Desired images y (N, 3, H, W); defaults to the test frames.
+
+    Returns
+    -------
+    dict
+        ``psnr``, ``rmse``, ``ssim`` of the captured result against y, plus
+        ``reachable_fraction`` (share of pixels y can be produced at) and ``projections``.
+    """
+    y = data.test.frames if desired is None else desired
+    x_star = method.predict(y, data.surface, batch_size=batch_size)
+    captured = project(sim, x_star, CLOSED_LOOP_STREAM)
+    scores = evaluate(captured, y, batch_size=batch_size)
+    return {**scores, "reachable_fraction": float(reachable_mask(data, y).float().mean()),
+            "projections": int(y.shape[0])}
+
+
+def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
+                         gain: float = 1.0, report: tuple[int, ...] = (1, 2, 4, 8)) -> list[dict]:
+    """Model-free feedback compensation (Nayar et al. 2003): the oracle row.
+
+    Start from x₀ = y; project xₖ, capture cₖ, correct xₖ₊₁ = clip(xₖ + gain · (y − cₖ), 0, 1).
+
+    Parameters
+    ----------
+    report : tuple of int
+        Numbers of corrections k after which the capture cₖ is scored (0 = y projected as is).
+
+    Returns
+    -------
+    list[dict]
+        One row per k in ``report``: ``iterations`` (k), the closed-loop ``psnr``/``rmse``/``ssim``
+        of cₖ against y, and ``projections`` spent so far ((k + 1) per frame).
+    """
+    y = data.test.frames if desired is None else desired
+    x = y.clone()
+    rows = []
+    for k in range(max(report) + 1):
+        captured = project(sim, x, CLOSED_LOOP_STREAM + 1 + k)
+        if k in report:
+            rows.append({"iterations": k, **evaluate(captured, y), "projections": int(y.shape[0]) * (k + 1)})
+        x = (x + gain * (y - captured)).clamp(0, 1)
+    return rows
