@@ -28,14 +28,15 @@ REACH_TOLERANCE = 2 / 255
 
 def simulator_for(setup_dir: str | Path) -> Simulator:
     """The simulator a dataset was rendered with: its resolved ``setup.toml`` plus the canonical
-    size, fidelity and spp recorded in ``meta.json``."""
+    size, fidelity and spp recorded in ``meta.json`` (a transport operator comes from the cache)."""
     setup_dir = Path(setup_dir)
     try:
         meta = json.loads((setup_dir / "meta.json").read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise DatasetError(f"{setup_dir / 'meta.json'}: cannot read ({exc})") from None
     setup = load_setup(setup_dir / "setup.toml")
-    return Simulator(setup, tuple(meta["size"]), meta.get("fidelity"), meta.get("spp"))
+    return Simulator(setup, tuple(meta["size"]), meta.get("fidelity"), meta.get("spp"),
+                     cache_dir=setup_dir / "cache")
 
 
 def project(sim: Simulator, frames: torch.Tensor, stream: int) -> torch.Tensor:
