@@ -49,7 +49,7 @@ def test_scene_path_unknown_name_lists_shipped():
 
 def test_default_scene_key_numbers():
     s = load_setup(scene_path("default"))
-    assert s.is_planar_diffuse and s.render.fidelity == "direct" and s.render.spp == 16
+    assert s.is_planar_diffuse and s.render.fidelity == "auto" and s.render.spp == 16
     assert s.surface.texture in images.SURFACE_KINDS and s.surface.albedo_scale == 0.8
     assert s.projector.resolution == (256, 256) and s.camera.resolution == (256, 256)
     assert s.projector.position == (0.0, 0.0, 1.0) and s.camera.position == (0.25, 0.0, 1.0)
