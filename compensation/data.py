@@ -1,0 +1,246 @@
+"""Loading one rendered setup (design.md §5) as torch tensors for training and evaluation.
+
+```
+DATA_ROOT/{ref,train,test}/img_XXXX.png               projector frames x, shared by all setups
+DATA_ROOT/<setup>/cam/warp/{ref,train,test}/img_XXXX.png   captures x̃ in the projector view
+DATA_ROOT/<setup>/meta.json                           written last: marks a finished setup
+```
+The surface image s̃ is the capture of the plain gray frame, ``cam/warp/ref/img_0126.png``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sim.errors import DatasetError
+from sim.pngio import read_png
+
+N_PLAIN = 125
+"""Plain colour frames ``ref/img_0001.png`` … ``img_0125.png`` (5³ levels, black … white)."""
+SURFACE_NAME = "img_0126.png"
+"""Capture of the plain gray frame: the surface image s̃."""
+SPLITS = ("train", "test")
+_NAME = re.compile(r"img_(\d{4,})\.png")
+
+
+@dataclass(frozen=True)
+class PairSet:
+    """Captures and the projector frames that produced them, index-aligned.
+
+    Attributes
+    ----------
+    captures : torch.Tensor
+        Camera captures x̃ warped to the projector view, float32 (N, 3, H, W), encoded values
+        in [0, 1].
+    frames : torch.Tensor
+        Projector input frames x, float32 (N, 3, H, W) in [0, 1].
+    """
+
+    captures: torch.Tensor
+    frames: torch.Tensor
+
+    def __len__(self) -> int:
+        return self.captures.shape[0]
+
+
+@dataclass(frozen=True)
+class SetupData:
+    """Everything a compensation method needs from one finished setup.
+
+    Attributes
+    ----------
+    name : str
+        Setup name (the folder name).
+    setup_dir : Path
+        The setup folder ``DATA_ROOT/<setup>``.
+    train, test : PairSet
+        Training and test pairs (the first ``n_train`` / ``n_test`` of the dataset).
+    ref : PairSet
+        The 125 plain colour frames and their captures (TPS samples).
+    surface : torch.Tensor
+        Surface image s̃, float32 (1, 3, H, W) in [0, 1].
+    """
+
+    name: str
+    setup_dir: Path
+    train: PairSet
+    test: PairSet
+    ref: PairSet
+    surface: torch.Tensor
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """Canonical image size (height, width) in pixels."""
+        return tuple(self.surface.shape[-2:])
+
+
+def image_indices(folder: Path) -> set[int]:
+    """1-based indices of the ``img_XXXX.png`` files in ``folder`` (empty if it is missing)."""
+    if not folder.is_dir():
+        return set()
+    return {int(m.group(1)) for name in os.listdir(folder) if (m := _NAME.fullmatch(name))}
+
+
+def _names(indices) -> str:
+    """``img_0007.png, img_0311.png`` (at most ten names, then a count)."""
+    indices = sorted(indices)
+    text = ", ".join(f"img_{i:04d}.png" for i in indices[:10])
+    return text + (f" and {len(indices) - 10} more" if len(indices) > 10 else "")
+
+
+def check_finished(setup_dir: Path) -> dict:
+    """Check that ``setup_dir`` is a finished setup and return its ``meta.json``.
+
+    Raises
+    ------
+    DatasetError
+        If the folder is missing, or ``meta.json`` (written last by the renderer) is missing or
+        unreadable.
+    """
+    if not setup_dir.is_dir():
+        raise DatasetError(f"{setup_dir}: setup folder not found (render it with `procam render`)")
+    meta_file = setup_dir / "meta.json"
+    if not meta_file.exists():
+        raise DatasetError(f"{setup_dir}: setup is not finished (no meta.json); "
+                           "re-run `procam render` to complete it")
+    try:
+        meta = json.loads(meta_file.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{meta_file}: cannot read ({exc})") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("counts", {}), dict):
+        raise DatasetError(f"{meta_file}: expected a JSON object with a 'counts' object per split")
+    return meta
+
+
+def available_pairs(setup_dir: Path, split: str, meta: dict) -> int:
+    """Number of complete (capture, frame) pairs of ``split``, checked against the frames.
+
+    A setup holds captures of frames 1 … n, where n is ``meta.json``'s count for the split (the
+    root may hold more frames, rendered later for a larger setup) or, without a count, every frame
+    of the root.
+
+    Raises
+    ------
+    DatasetError
+        Naming the folder and the missing files if a capture or a frame of 1 … n is absent.
+    """
+    frame_dir = setup_dir.parent / split
+    capture_dir = setup_dir / "cam" / "warp" / split
+    frames = image_indices(frame_dir)
+    captures = image_indices(capture_dir)
+    if not frames:
+        raise DatasetError(f"{frame_dir}: no projector frames (img_XXXX.png) found")
+    counted = meta.get("counts", {}).get(split)
+    expected = int(counted) if counted is not None else max(frames)
+    wanted = set(range(1, expected + 1))
+    if missing := wanted - frames:
+        source = (f"{setup_dir / 'meta.json'} lists {expected}" if counted is not None
+                  else f"they are numbered up to {expected}")
+        raise DatasetError(f"{frame_dir}: {len(frames)} frames but {source}; missing {_names(missing)}")
+    if missing := wanted - captures:
+        have = len(captures & wanted)
+        source = (f"{frame_dir} has {expected} frames" if counted is None or expected == len(frames)
+                  else f"{setup_dir / 'meta.json'} lists {expected}")
+        raise DatasetError(f"{capture_dir}: {have} captures but {source}; missing {_names(missing)}")
+    return expected
+
+
+def to_tensor(images: np.ndarray) -> torch.Tensor:
+    """uint8 (N, H, W, 3) images to a float32 (N, 3, H, W) tensor in [0, 1]."""
+    return torch.from_numpy(images).permute(0, 3, 1, 2).float().div_(255.0).contiguous()
+
+
+def _read_stack(paths: list[Path], reference: Path, shape: tuple[int, ...]) -> torch.Tensor:
+    """Decode PNGs in a thread pool straight into one float32 (N, 3, H, W) tensor in [0, 1].
+
+    Raises
+    ------
+    DatasetError
+        If an image's shape (H, W, 3) differs from ``shape``, the shape of ``reference``.
+    """
+    out = torch.empty((len(paths), 3, shape[0], shape[1]), dtype=torch.float32)
+
+    def load(i: int) -> None:
+        img = read_png(paths[i])
+        if img.shape != shape:
+            raise DatasetError(f"{paths[i]}: {img.shape[1]}x{img.shape[0]} pixels but {reference} is "
+                               f"{shape[1]}x{shape[0]} (all images of a dataset must have one size)")
+        out[i].copy_(torch.from_numpy(img).permute(2, 0, 1)).div_(255.0)
+
+    workers = max(1, min(4, os.cpu_count() or 1, len(paths)))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        list(pool.map(load, range(len(paths))))
+    return out
+
+
+def load_setup_data(setup_dir: str | os.PathLike, n_train: int | None = None,
+                    n_test: int | None = None) -> SetupData:
+    """Load a finished setup's training, test and reference pairs and its surface image.
+
+    Parameters
+    ----------
+    setup_dir : path-like
+        ``DATA_ROOT/<setup>``; the projector frames are read from ``DATA_ROOT``.
+    n_train, n_test : int or None
+        Use the first ``n`` pairs of each split; None uses all of them.
+
+    Returns
+    -------
+    SetupData
+        Tensors float32 (N, 3, H, W) in [0, 1]; H and W are divisible by 4.
+
+    Raises
+    ------
+    DatasetError
+        If the setup is missing or unfinished, a capture or frame is missing, more pairs are asked
+        for than exist, images differ in size, or the size is not divisible by 4. The message
+        names the path and what is missing or mismatched.
+    """
+    setup_dir = Path(setup_dir)
+    meta = check_finished(setup_dir)
+    surface_path = setup_dir / "cam" / "warp" / "ref" / SURFACE_NAME
+    if not surface_path.exists():
+        raise DatasetError(f"{surface_path}: surface image s̃ (capture of the gray frame) is missing")
+
+    wanted = {"train": n_train, "test": n_test}
+    counts = {}
+    for split in SPLITS:
+        have = available_pairs(setup_dir, split, meta)
+        n = have if wanted[split] is None else wanted[split]
+        if n < 1:
+            raise DatasetError(f"{setup_dir}: n_{split}={n}: expected at least 1 pair")
+        if n > have:
+            raise DatasetError(f"{setup_dir / 'cam' / 'warp' / split}: n_{split}={n} asked for but "
+                               f"the setup has only {have} {split} pairs")
+        counts[split] = n
+    ref_frames = image_indices(setup_dir.parent / "ref")
+    ref_captures = image_indices(setup_dir / "cam" / "warp" / "ref")
+    plain = set(range(1, N_PLAIN + 1))
+    for folder, present in ((setup_dir.parent / "ref", ref_frames),
+                            (setup_dir / "cam" / "warp" / "ref", ref_captures)):
+        if missing := plain - present:
+            raise DatasetError(f"{folder}: {len(present & plain)} of the {N_PLAIN} plain colour "
+                               f"images; missing {_names(missing)}")
+
+    surface = read_png(surface_path)
+    height, width = surface.shape[:2]
+    if height % 4 or width % 4:
+        raise DatasetError(f"{surface_path}: {width}x{height} pixels; CompenNet needs width and "
+                           "height divisible by 4 (render at another --size)")
+
+    def pairs(split: str, n: int) -> PairSet:
+        names = [f"img_{i:04d}.png" for i in range(1, n + 1)]
+        return PairSet(_read_stack([setup_dir / "cam" / "warp" / split / f for f in names],
+                                   surface_path, surface.shape),
+                       _read_stack([setup_dir.parent / split / f for f in names], surface_path, surface.shape))
+
+    return SetupData(name=setup_dir.name, setup_dir=setup_dir,
+                     train=pairs("train", counts["train"]), test=pairs("test", counts["test"]),
+                     ref=pairs("ref", N_PLAIN), surface=to_tensor(surface[None]))

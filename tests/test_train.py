@@ -1,0 +1,267 @@
+"""compensation.train / compensation.methods: the paper's recipe on a tiny synthetic setup."""
+from __future__ import annotations
+
+import csv
+import json
+import re
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from compensation.data import load_setup_data
+from compensation.methods import METHODS, get_method, load_state
+from compensation.metrics import evaluate
+from compensation.train import (PROFILES, TrainConfig, batch_indices, compensate, load_run, make_config,
+                                train_run)
+from sim.errors import ProcamError
+from sim.pngio import read_png, to_uint8
+from synthetic import make_dataset
+
+RUN_FILES = {"config.json", "loss.csv", "loss.png", "model.pt", "metrics.json", "examples.png"}
+
+
+def tiny_config(method: str = "compennet", **overrides) -> TrainConfig:
+    """32², batch 8, CPU: a few seconds per 100 iterations on 2 cores."""
+    values = dict(method=method, iters=200, batch=8, eval_batch=8, device="cpu", n_train=None, n_test=None)
+    return TrainConfig(**{**values, **overrides})
+
+
+def read_losses(run_dir) -> list[float]:
+    with open(run_dir / "loss.csv") as f:
+        return [float(row["loss"]) for row in csv.DictReader(f)]
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    """32² batches gain nothing from intra-op threads, and on a shared machine two OpenMP threads
+    spin-wait against other processes (measured 10× slower than one): use one, then restore."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def setup_dir(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("data"))
+
+
+@pytest.fixture(scope="module")
+def data(setup_dir):
+    return load_setup_data(setup_dir)
+
+
+@pytest.fixture(scope="module")
+def run(setup_dir, tmp_path_factory):
+    """A finished compennet run: 200 iterations on the synthetic setup."""
+    out = tmp_path_factory.mktemp("runs") / "compennet"
+    train_run(setup_dir, tiny_config(), out, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def nosurf_run(setup_dir, tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "nosurf"
+    train_run(setup_dir, tiny_config("compennet-nosurf", iters=60), out, progress=False)
+    return out
+
+
+def test_compennet_learns_and_beats_uncompensated(run):
+    losses = read_losses(run)
+    assert len(losses) == 200
+    assert np.mean(losses[-10:]) < 0.5 * np.mean(losses[:10])
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["psnr"] > metrics["uncompensated"]["psnr"]
+    assert metrics["rmse"] < metrics["uncompensated"]["rmse"]
+
+
+def test_uncompensated_row_is_captures_vs_frames(run, data):
+    metrics = json.loads((run / "metrics.json").read_text())
+    plain = evaluate(data.test.captures, data.test.frames)
+    assert metrics["uncompensated"] == pytest.approx({k: float(plain[k]) for k in ("psnr", "rmse", "ssim")})
+
+
+def test_run_directory(run, setup_dir, data):
+    assert {p.name for p in run.iterdir()} == RUN_FILES
+    assert not list(run.parent.glob("*.tmp-*"))
+    config = json.loads((run / "config.json").read_text())
+    assert config["train"] == {**vars(tiny_config()), "n_train": 16, "n_test": 4}
+    assert config["dataset"] == str(setup_dir.resolve())
+    assert config["image_size"] == [32, 32] and config["torch_version"] == torch.__version__
+    assert config["device"].startswith("cpu") and "procam_version" in config
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["method"] == "compennet" and metrics["setup"] == "synth"
+    assert (metrics["n_train"], metrics["n_test"], metrics["iters"], metrics["batch"]) == (16, 4, 200, 8)
+    assert metrics["train_seconds"] > 0 and metrics["samples_per_second"] > 0
+    with open(run / "loss.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert rows[0]["iteration"] == "1" and rows[-1]["iteration"] == "200"
+    assert float(rows[0]["lr"]) == pytest.approx(1e-3)
+    grid = read_png(run / "examples.png")
+    assert grid.shape == (4 * 130 - 2, 4 * 130 - 2, 3)  # rows s̃ | x̃ | π†(x̃) | x of 32² enlarged 4×
+    assert np.array_equal(grid[:128:4, :128:4], to_uint8(data.surface[0].permute(1, 2, 0).numpy()))
+    assert np.array_equal(grid[130:258:4, 390:518:4], to_uint8(data.test.frames[1].permute(1, 2, 0).numpy()))
+    assert read_png(run / "loss.png").shape[2] == 3
+
+
+def test_learning_rate_steps(setup_dir, tmp_path):
+    train_run(setup_dir, tiny_config(iters=7, lr_step=3, lr_gamma=0.5), tmp_path / "r", progress=False)
+    with open(tmp_path / "r/loss.csv") as f:
+        rates = [float(row["lr"]) for row in csv.DictReader(f)]
+    assert rates == pytest.approx([1e-3] * 3 + [5e-4] * 3 + [2.5e-4])
+
+
+def test_load_run_reproduces_the_metrics(run, data):
+    method, config = load_run(run, device="cpu")
+    assert method.name == config["train"]["method"] == "compennet"
+    scores = evaluate(method.predict(data.test.captures, data.surface), data.test.frames)
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert float(scores["psnr"]) == pytest.approx(metrics["psnr"], abs=1e-9)
+
+
+@pytest.mark.parametrize("name", ["compennet", "compennet-nosurf"])
+def test_checkpoint_round_trip(name, data, tmp_path):
+    method = get_method(name)(device="cpu")
+    method.fit(data, tiny_config(name, iters=5), progress=False)
+    method.save(tmp_path)
+    loaded = get_method(name).load(tmp_path, device="cpu")
+    assert torch.equal(method.predict(data.test.captures, data.surface),
+                       loaded.predict(data.test.captures, data.surface))
+
+
+def test_nosurf_runs_without_surface_branch(nosurf_run):
+    metrics = json.loads((nosurf_run / "metrics.json").read_text())
+    assert metrics["method"] == "compennet-nosurf" and np.isfinite(metrics["psnr"])
+    losses = read_losses(nosurf_run)
+    assert np.mean(losses[-10:]) < np.mean(losses[:10])
+    n_params = sum(t.numel() for t in load_state(nosurf_run / "model.pt").values())
+    assert n_params == 736_063  # design.md §7: CompenNet w/o surf
+
+
+def test_surface_input_matters_only_with_the_surface_branch(run, nosurf_run, data):
+    x, s, other = data.test.captures, data.surface, data.surface.flip(-1)
+    method, _ = load_run(run, device="cpu")
+    assert not torch.equal(method.predict(x, s), method.predict(x, other))
+    method, _ = load_run(nosurf_run, device="cpu")
+    assert torch.equal(method.predict(x, s), method.predict(x, other))
+
+
+class Opaque:
+    """Not a tensor: a weights-only load must refuse it."""
+
+
+@pytest.mark.parametrize("payload, pickled", [({"w": torch.zeros(2), "obj": Opaque()}, "Opaque"),
+                                             ({"w": torch.zeros(2), "f": len}, "len"), (Opaque(), "Opaque")])
+def test_pickled_object_checkpoint_is_refused(payload, pickled, run, tmp_path):
+    bad = tmp_path / "run"
+    shutil.copytree(run, bad)
+    torch.save(payload, bad / "model.pt")
+    with pytest.raises(ProcamError, match=re.escape(f"{bad / 'model.pt'}: refused to load: it holds a "
+                                                    "pickled ") + rf"\S*{pickled},"):
+        load_run(bad, device="cpu")
+
+
+def test_checkpoint_must_be_a_state_dict(tmp_path):
+    path = tmp_path / "model.pt"
+    torch.save([torch.zeros(2)], path)
+    with pytest.raises(ProcamError, match=re.escape(f"{path}: expected a state dict")):
+        load_state(path)
+    path.write_bytes(b"not a checkpoint")
+    with pytest.raises(ProcamError, match=re.escape(f"{path}: cannot read checkpoint")):
+        load_state(path)
+    with pytest.raises(ProcamError, match=re.escape(f"{tmp_path / 'none.pt'}: checkpoint not found")):
+        load_state(tmp_path / "none.pt")
+
+
+def test_amp_flag_changes_nothing_on_cpu(data):
+    weights = []
+    for amp in (False, True):
+        method = get_method("compennet")(device="cpu")
+        method.fit(data, tiny_config(iters=4, amp=amp), progress=False)
+        weights.append(method.model.state_dict())
+    assert weights[0].keys() == weights[1].keys()
+    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+
+
+def test_init_from_a_run(run, setup_dir, tmp_path):
+    out = tmp_path / "finetuned"
+    train_run(setup_dir, tiny_config(iters=10, init=str(run)), out, progress=False)
+    pretrained, scratch = read_losses(out), read_losses(run)
+    # Starting from the trained weights, the first losses are already near the end of the first run.
+    assert np.mean(pretrained[:5]) < 0.6 * np.mean(scratch[:5])
+    assert json.loads((out / "config.json").read_text())["train"]["init"] == str(run.resolve())
+
+
+def test_init_from_another_architecture_is_refused(nosurf_run, setup_dir, tmp_path):
+    message = f"{nosurf_run / 'model.pt'}: weights do not fit the compennet architecture (missing "
+    with pytest.raises(ProcamError, match=re.escape(message)):
+        train_run(setup_dir, tiny_config(iters=2, init=str(nosurf_run)), tmp_path / "r", progress=False)
+    assert not (tmp_path / "r").exists() and not list(tmp_path.glob("r.tmp-*"))
+
+
+def test_existing_run_is_replaced_only_when_asked(setup_dir, tmp_path):
+    out = tmp_path / "r"
+    train_run(setup_dir, tiny_config(iters=2), out, progress=False)
+    with pytest.raises(ProcamError, match=re.escape(f"{out}: a finished run already exists")):
+        train_run(setup_dir, tiny_config(iters=3), out, progress=False)
+    train_run(setup_dir, tiny_config(iters=3), out, progress=False, overwrite=True)
+    assert len(read_losses(out)) == 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+    (tmp_path / "other").mkdir()
+    with pytest.raises(ProcamError, match="is not a run directory"):
+        train_run(setup_dir, tiny_config(iters=2), tmp_path / "other", progress=False, overwrite=True)
+
+
+def test_compensate_uses_the_run_dataset_surface(run, data, tmp_path):
+    desired = data.test.frames[:2]
+    method, _ = load_run(run, device="cpu")
+    expected = method.predict(desired, data.surface)
+    assert torch.equal(compensate(run, desired, device="cpu"), expected)
+    moved = tmp_path / "run"
+    shutil.copytree(run, moved)
+    config = json.loads((moved / "config.json").read_text())
+    config["dataset"] = str(tmp_path / "gone" / "synth")
+    (moved / "config.json").write_text(json.dumps(config))
+    with pytest.raises(ProcamError, match=re.escape(f"{tmp_path / 'gone/synth/cam/warp/ref/img_0126.png'}: "
+                                                    "the surface image")):
+        compensate(moved, desired, device="cpu")
+    assert torch.equal(compensate(moved, desired, surface=data.surface, device="cpu"), expected)
+    with pytest.raises(ProcamError, match="expected shape"):
+        compensate(run, desired[:, :, :16], device="cpu")
+
+
+def test_batches_without_replacement():
+    gen = torch.Generator().manual_seed(0)
+    batches = batch_indices(10, 4, gen)
+    drawn = torch.cat([next(batches) for _ in range(10)])  # 40 indices: exactly 4 epochs
+    for b in drawn.view(10, 4):
+        assert len(set(b.tolist())) == 4
+    for epoch in drawn.view(4, 10):
+        assert sorted(epoch.tolist()) == list(range(10))
+
+
+def test_make_config_profiles_and_errors():
+    quick = make_config("quick", iters=7, n_train=None)
+    assert quick.profile == "quick" and quick.iters == 7
+    assert quick.batch == PROFILES["quick"]["batch"] and quick.n_train == PROFILES["quick"]["n_train"]
+    paper = make_config("paper")
+    assert (paper.n_train, paper.n_test, paper.iters, paper.batch, paper.lr, paper.weight_decay,
+            paper.lr_step, paper.lr_gamma, paper.loss, paper.seed) == (500, 200, 1000, 64, 1e-3, 1e-4,
+                                                                        800, 0.2, "l1+ssim", 0)
+    with pytest.raises(ProcamError, match="profile 'fast': choose one of paper, quick"):
+        make_config("fast")
+    with pytest.raises(ProcamError, match="unknown training option"):
+        make_config("quick", iterations=3)
+    with pytest.raises(ProcamError, match="method 'tps9'"):
+        make_config("quick", method="tps9")
+    with pytest.raises(ProcamError, match="batch=0: expected a positive integer"):
+        make_config("quick", batch=0)
+
+
+def test_registry():
+    assert {"compennet", "compennet-nosurf"} <= set(METHODS)
+    with pytest.raises(ValueError, match="unknown method 'nope'; choose one of: ") as error:
+        get_method("nope")
+    assert all(name in str(error.value) for name in METHODS)
