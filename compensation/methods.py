@@ -256,7 +256,3 @@ class CompenNetNoSurfMethod(CompenNetMethod):
     name = "compennet-nosurf"
     surface = False
 
-
-# The baselines register themselves on import; importing them here makes the registry complete
-# wherever it is used (CLI, train_run, benchmark).
-from compensation import nayar, pix2pix, tps  # noqa: E402, F401
