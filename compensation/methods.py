@@ -127,6 +127,9 @@ class Method(abc.ABC):
     """
 
     name: ClassVar[str]
+    profiles: ClassVar[dict[str, dict]] = {}
+    """The method's own TrainConfig values per profile, layered over the common profile by
+    :func:`compensation.train.make_config` (empty: the common profile as it is)."""
 
     @abc.abstractmethod
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True) -> dict:

@@ -58,11 +58,12 @@ PIX2PIX_PROFILES: dict[str, dict] = {
     # machine shared with other jobs: 128² (7 levels) 0.60-0.67 CPU-seconds per iteration, i.e.
     # 1.0 it/s on one thread under load and up to 2.6 it/s on two threads; 64² (6 levels) 0.33
     # CPU-s/it, 2.0 it/s on one thread, up to 6.0 it/s on two. 500 iterations (2 epochs of the
-    # quick profile's 250 pairs) take 3-5 min at 128² on two free cores.
+    # quick profile's 250 pairs) take 3-5 min at 128² on two free cores, ~1.5 min at the quick
+    # profile's 64².
     "quick": dict(iters=500, batch=1),
 }
-"""pix2pix's own iterations and batch size per training profile; used unless the configuration
-overrides them (see :func:`resolve_schedule`)."""
+"""pix2pix's own iterations and batch size per training profile, layered over the common profile
+by :func:`compensation.train.make_config` (explicit overrides still win)."""
 
 NGF = 64
 """Generator filters in the outermost level (channels)."""
@@ -289,35 +290,12 @@ def batch_statistics(model: nn.Module) -> Iterator[None]:
         model.train(was_training)
 
 
-def resolve_schedule(cfg: TrainConfig) -> tuple[int, int]:
-    """Iterations and batch size pix2pix trains with under ``cfg``.
-
-    A value equal to the one the CompenNet profile ``cfg.profile`` sets is taken as not chosen by
-    the user and replaced by pix2pix's own (:data:`PIX2PIX_PROFILES`); any other value is an
-    explicit override and kept.
-
-    Examples
-    --------
-    >>> from compensation.train import TrainConfig
-    >>> resolve_schedule(TrainConfig(method="pix2pix"))  # the paper profile's defaults
-    (10000, 1)
-    >>> resolve_schedule(TrainConfig(method="pix2pix", iters=50, batch=4))
-    (50, 4)
-    """
-    from compensation.train import PROFILES
-
-    base, own = PROFILES.get(cfg.profile, {}), PIX2PIX_PROFILES.get(cfg.profile, {})
-    iters = own["iters"] if "iters" in own and cfg.iters == base.get("iters") else cfg.iters
-    batch = own["batch"] if "batch" in own and cfg.batch == base.get("batch") else cfg.batch
-    return iters, batch
-
-
 @register
 class Pix2PixMethod(Method):
     """pix2pix trained on (x̃, x) pairs, the CompenNet paper's baseline (no surface image).
 
-    ``fit`` takes the iterations and batch size from :func:`resolve_schedule`, the seed and device
-    from the configuration, and pix2pix's own optimiser (Adam :data:`LR`, :data:`BETAS`, constant
+    ``fit`` takes the iterations, batch size (:data:`PIX2PIX_PROFILES`, layered by ``make_config``),
+    seed and device from the configuration, and pix2pix's own optimiser (Adam :data:`LR`, :data:`BETAS`, constant
     learning rate, no weight decay) and objective; ``cfg.lr``, ``weight_decay``, ``lr_step``,
     ``lr_gamma``, ``loss`` and ``amp`` do not apply (training is fp32).
 
@@ -328,6 +306,7 @@ class Pix2PixMethod(Method):
     """
 
     name = "pix2pix"
+    profiles = PIX2PIX_PROFILES
 
     def __init__(self, device: str = "auto"):
         self.device = resolve_device(device)
@@ -357,7 +336,7 @@ class Pix2PixMethod(Method):
         from compensation.train import batch_indices
 
         self.device = device = resolve_device(cfg.device)
-        iters, batch = resolve_schedule(cfg)
+        iters, batch = cfg.iters, cfg.batch
         batch = min(batch, len(data.train))
         torch.manual_seed(cfg.seed)  # initialisation and dropout masks
         model = Pix2Pix(unet_levels(*data.size))

@@ -124,6 +124,9 @@ class TrainConfig:
 def make_config(profile: str = "paper", **overrides) -> TrainConfig:
     """A TrainConfig from a named profile, with keyword overrides (None values are ignored).
 
+    Values are layered: :data:`PROFILES` ``[profile]``, then the method's own profile
+    (``Method.profiles[profile]``, e.g. pix2pix's iterations at batch 1), then the overrides.
+
     Raises
     ------
     ProcamError
@@ -136,6 +139,9 @@ def make_config(profile: str = "paper", **overrides) -> TrainConfig:
         raise ProcamError(f"unknown training option(s) {', '.join(unknown)}; "
                           f"expected some of {', '.join(sorted(names))}")
     values = {k: v for k, v in PROFILES[profile].items() if k in names}
+    method = overrides.get("method") or TrainConfig.method
+    if method in METHODS:  # an unknown name is reported by TrainConfig
+        values.update(METHODS[method].profiles.get(profile, {}))
     values.update({k: v for k, v in overrides.items() if v is not None})
     return TrainConfig(profile=profile, **values)
 

@@ -14,7 +14,7 @@ from compensation.data import PairSet, SetupData
 from compensation.methods import CHECKPOINT, get_method, save_state
 from compensation.models import CompenNet, count_parameters
 from compensation.pix2pix import (LR, PIX2PIX_PROFILES, PatchDiscriminator, Pix2Pix, Pix2PixMethod,
-                                  UNetGenerator, check_size, init_normal, resolve_schedule, unet_levels)
+                                  UNetGenerator, check_size, init_normal, unet_levels)
 from compensation.train import PROFILES, TrainConfig, make_config, train_run
 from sim.errors import ProcamError
 from synthetic import make_dataset, random_frames
@@ -189,13 +189,15 @@ def test_train_run_writes_a_run_directory(tmp_path):
 
 def test_schedule_uses_pix2pix_profiles_unless_overridden():
     assert PIX2PIX_PROFILES["paper"] == dict(iters=10000, batch=1)
-    assert resolve_schedule(TrainConfig(method="pix2pix")) == (10000, 1)
-    assert resolve_schedule(make_config("paper", method="pix2pix")) == (10000, 1)
+    sched = lambda cfg: (cfg.iters, cfg.batch)  # noqa: E731
+    assert sched(make_config("paper", method="pix2pix")) == (10000, 1)
+    assert sched(make_config("paper", method="compennet")) == (1000, 64)
     quick = PIX2PIX_PROFILES["quick"]
-    assert resolve_schedule(make_config("quick", method="pix2pix")) == (quick["iters"], 1)
-    assert resolve_schedule(make_config("quick", method="pix2pix", iters=7)) == (7, 1)
-    assert resolve_schedule(make_config("quick", method="pix2pix", batch=4)) == (quick["iters"], 4)
-    assert PROFILES["quick"]["iters"] != quick["iters"]
+    assert sched(make_config("quick", method="pix2pix")) == (quick["iters"], 1)
+    assert sched(make_config("quick", method="pix2pix", iters=7)) == (7, 1)
+    assert sched(make_config("quick", method="pix2pix", batch=4)) == (quick["iters"], 4)
+    assert sched(make_config("quick", method="pix2pix", iters=PROFILES["quick"]["iters"], batch=16)) == (
+        PROFILES["quick"]["iters"], 16)  # an explicit value equal to CompenNet's is still honoured
 
 
 def test_check_size_accepts_multiples():
