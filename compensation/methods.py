@@ -85,6 +85,29 @@ def load_state(path: Path) -> dict[str, torch.Tensor]:
     return state
 
 
+def load_arrays(path: Path, keys: tuple[str, ...], what: str) -> dict[str, "np.ndarray"]:
+    """Arrays ``keys`` of a method's ``.npz`` state, read without unpickling.
+
+    Raises
+    ------
+    ProcamError
+        If the file is missing, unreadable, holds pickled objects or lacks one of ``keys``;
+        the message names the file and ``what`` it should hold.
+    """
+    import numpy as np
+
+    path = Path(path)
+    if not path.exists():
+        raise ProcamError(f"{path}: {what} not found")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            return {k: f[k] for k in keys}
+    except KeyError as exc:
+        raise ProcamError(f"{path}: missing array {exc}; expected {', '.join(keys)}") from None
+    except (OSError, ValueError) as exc:
+        raise ProcamError(f"{path}: cannot read {what} ({exc})") from None
+
+
 def load_weights(model: torch.nn.Module, path: Path, what: str) -> None:
     """Copy the weights of checkpoint ``path`` into ``model`` (same architecture only).
 

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from compensation.data import N_PLAIN
-from compensation.methods import Method, register, resolve_device
+from compensation.methods import Method, load_arrays, register, resolve_device
 from compensation.tps import pixel_samples
 from sim.errors import ProcamError
 
@@ -298,16 +298,7 @@ class NayarMethod(Method):
             or of inconsistent shapes.
         """
         path = Path(run_dir) / STATE_FILE
-        if not path.exists():
-            raise ProcamError(f"{path}: colour-mixing model not found")
-        try:
-            with np.load(path, allow_pickle=False) as f:
-                state = {k: f[k] for k in ("gamma", "matrix", "offset", "size")}
-        except KeyError as exc:
-            raise ProcamError(f"{path}: missing array {exc}; expected gamma, matrix, offset, "
-                              "size") from None
-        except (OSError, ValueError) as exc:
-            raise ProcamError(f"{path}: cannot read colour-mixing model ({exc})") from None
+        state = load_arrays(path, ("gamma", "matrix", "offset", "size"), "colour-mixing model")
         gamma, matrix, offset, size = (state[k] for k in ("gamma", "matrix", "offset", "size"))
         pixels = int(np.prod(size)) if size.shape == (2,) else -1
         if gamma.shape != (3,) or matrix.shape != (pixels, 3, 3) or offset.shape != (pixels, 3):

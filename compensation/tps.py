@@ -67,7 +67,7 @@ from scipy.spatial.distance import cdist
 from tqdm import tqdm
 
 from compensation.data import N_PLAIN, PairSet
-from compensation.methods import Method, register, resolve_device
+from compensation.methods import Method, load_arrays, register, resolve_device
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
@@ -378,16 +378,7 @@ class TPSMethod(Method):
             or of inconsistent shapes.
         """
         path = Path(run_dir) / STATE_FILE
-        if not path.exists():
-            raise ProcamError(f"{path}: spline state not found")
-        try:
-            with np.load(path, allow_pickle=False) as f:
-                state = {k: f[k] for k in ("centres", "coeffs", "size", "smoothing")}
-        except KeyError as exc:
-            raise ProcamError(f"{path}: missing array {exc}; expected centres, coeffs, size, "
-                              "smoothing") from None
-        except (OSError, ValueError) as exc:
-            raise ProcamError(f"{path}: cannot read spline state ({exc})") from None
+        state = load_arrays(path, ("centres", "coeffs", "size", "smoothing"), "spline state")
         centres, coeffs, size = state["centres"], state["coeffs"], state["size"]
         if (size.shape != (2,) or centres.ndim != 3 or centres.shape[2] != 3
                 or centres.shape[0] != int(np.prod(size))
