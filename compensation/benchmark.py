@@ -244,15 +244,15 @@ def _write_tables(out: Path, cfg: BenchConfig, rows, failures, uncompensated, or
     cl = cfg.closed_loop
     head = ["method", "n_train", "PSNR", "RMSE", "SSIM", "train s", "setups"]
     if cl:
-        head += ["CL PSNR", "CL RMSE", "CL SSIM"]
+        head += ["CL PSNR", "CL RMSE", "CL SSIM", "infer ms/frame"]
 
     def line(name, n, group):
         row = [name, n] + [_mean(group, m) for m in METRICS] + [_mean(group, "train_seconds"), len(group)]
-        return row + ([_mean(group, m, "closed_loop") for m in METRICS] if cl else [])
+        return row + ([_mean(group, m, "closed_loop") for m in (*METRICS, "infer_ms_per_frame")] if cl else [])
 
     unc = list(uncompensated.values())
     unc_row = ["uncompensated", "-"] + [float(np.mean([u[m] for u in unc])) for m in METRICS] + ["-", len(unc)]
-    unc_row += ["-"] * 3 if cl else []
+    unc_row += ["-"] * 4 if cl else []
     if "1" in cfg.tables:
         t1 = [r for r in rows if r["table"] == "1"]
         body = [unc_row] + [line(m, n, [r for r in t1 if r["method"] == m and r["n_train"] == n])
@@ -260,7 +260,7 @@ def _write_tables(out: Path, cfg: BenchConfig, rows, failures, uncompensated, or
         for k in sorted({row["iterations"] for rs in oracle.values() for row in rs}):
             group = [row for rs in oracle.values() for row in rs if row["iterations"] == k]
             body.append([f"iterative refinement ({k} it., {group[0]['projections']} proj.)", "-", "-", "-", "-",
-                         "-", len(group)] + [_mean(group, m) for m in METRICS])
+                         "-", len(group)] + [_mean(group, m) for m in METRICS] + ["-"])
         _table(out / "table1", f"Table 1: methods x training-set size, mean over {len(unc)} setups "
                f"({cfg.profile} profile, {cfg.canonical}² px, {cfg.tests} test pairs each)", head, body,
                _correlation_note(rows) if cl else "")

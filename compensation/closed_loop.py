@@ -8,6 +8,7 @@ the projector can produce on that surface (between the captures of a black and a
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -96,14 +97,17 @@ def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor |
     -------
     dict
         ``psnr``, ``rmse``, ``ssim`` of the captured result against y, plus
-        ``reachable_fraction`` (share of pixels y can be produced at) and ``projections``.
+        ``reachable_fraction`` (share of pixels y can be produced at), ``projections`` and
+        ``infer_ms_per_frame`` (wall-clock of π† per frame, batched).
     """
     y = data.test.frames if desired is None else desired
+    t0 = time.perf_counter()
     x_star = method.predict(y, data.surface, batch_size=batch_size)
+    infer_ms = 1000 * (time.perf_counter() - t0) / y.shape[0]
     captured = project(sim, x_star, CLOSED_LOOP_STREAM)
     scores = evaluate(captured, y, batch_size=batch_size)
     return {**scores, "reachable_fraction": float(reachable_mask(data, y).float().mean()),
-            "projections": int(y.shape[0])}
+            "projections": int(y.shape[0]), "infer_ms_per_frame": round(infer_ms, 3)}
 
 
 def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
