@@ -262,9 +262,9 @@ def cmd_demo(args: argparse.Namespace) -> None:
 
 def add_demo(sub) -> None:
     p = sub.add_parser("demo", help="the whole pipeline on embedded defaults (minutes on a CPU)",
-                       description="Render the default setup (quick profile), train CompenNet, "
-                                   "evaluate (surrogate and closed loop), print the table and "
-                                   "write a figure.")
+                       description="Render the default setup (quick profile), fit CompenNet "
+                                   "and TPS, evaluate them (surrogate and closed loop, beside the "
+                                   "iterative-feedback oracle), print the table and write a figure.")
     p.add_argument("--out", default="out", help="output folder (default: out)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_demo)

@@ -79,7 +79,7 @@ def reachable_mask(data: SetupData, desired: torch.Tensor) -> torch.Tensor:
 
 
 def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
-                batch_size: int = 64) -> dict:
+                batch_size: int = 64, return_captures: bool = False) -> dict | tuple[dict, torch.Tensor]:
     """Closed-loop score of a fitted method.
 
     Parameters
@@ -92,6 +92,8 @@ def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor |
         The same setup's simulator.
     desired : torch.Tensor, optional
         Desired images y (N, 3, H, W); defaults to the test frames.
+    return_captures : bool
+        Also return the captures of the projected compensation images.
 
     Returns
     -------
@@ -99,6 +101,8 @@ def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor |
         ``psnr``, ``rmse``, ``ssim`` of the captured result against y, plus
         ``reachable_fraction`` (share of pixels y can be produced at), ``projections`` and
         ``infer_ms_per_frame`` (wall-clock of π† per frame, batched).
+    torch.Tensor
+        Only with ``return_captures``: the captures, float32 (N, 3, H, W) in [0, 1].
     """
     y = data.test.frames if desired is None else desired
     t0 = time.perf_counter()
@@ -106,8 +110,9 @@ def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor |
     infer_ms = 1000 * (time.perf_counter() - t0) / y.shape[0]
     captured = project(sim, x_star, CLOSED_LOOP_STREAM)
     scores = evaluate(captured, y, batch_size=batch_size)
-    return {**scores, "reachable_fraction": float(reachable_mask(data, y).float().mean()),
-            "projections": int(y.shape[0]), "infer_ms_per_frame": round(infer_ms, 3)}
+    scores = {**scores, "reachable_fraction": float(reachable_mask(data, y).float().mean()),
+              "projections": int(y.shape[0]), "infer_ms_per_frame": round(infer_ms, 3)}
+    return (scores, captured) if return_captures else scores
 
 
 def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,

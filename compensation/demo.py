@@ -1,8 +1,9 @@
 """``procam demo``: the whole pipeline on embedded defaults, in minutes on a laptop CPU.
 
-Render the shipped default setup at the quick profile, train CompenNet, score it on the surrogate
-benchmark and in closed loop (its compensation projected back through the simulated setup), print
-the table and write a figure: surface, uncompensated, compensated, desired.
+Render the shipped default setup at the quick profile, fit CompenNet and TPS, score both on the
+surrogate benchmark and in closed loop (their compensation projected back through the simulated
+setup), beside the iterative-feedback oracle and the reachable share of pixels; print the table and
+write a figure: surface, uncompensated, each method's compensated capture, desired.
 """
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from compensation.closed_loop import CLOSED_LOOP_STREAM, project, simulator_for
+from compensation.closed_loop import closed_loop, iterative_refinement, simulator_for
 from compensation.data import load_setup_data
 from compensation.metrics import evaluate
 from compensation.train import PROFILES, load_run, make_config, train_run
@@ -21,33 +22,50 @@ from sim.pngio import write_png
 from sim.setup import load_setup, scene_path
 
 PROFILE = "quick"
-METHODS = ("compennet",)
+METHODS = ("compennet", "tps")
+ORACLE_ITERATIONS = 8
 N_FIGURE = 4
 
 
 def _row(name: str, scores: dict) -> str:
-    return f"| {name:<34} | {scores['psnr']:>6.2f} | {scores['rmse']:.4f} | {scores['ssim']:.4f} |"
+    return f"| {name:<40} | {scores['psnr']:>6.2f} | {scores['rmse']:.4f} | {scores['ssim']:.4f} |"
 
 
-def figure(surface: torch.Tensor, uncompensated: torch.Tensor, compensated: torch.Tensor,
+def figure(surface: torch.Tensor, uncompensated: torch.Tensor, compensated: dict[str, torch.Tensor],
            desired: torch.Tensor) -> np.ndarray:
-    """A grid, one row per image: surface s̃ | y projected as is | x* projected | desired y."""
+    """A grid, one row per image: surface s̃ | y projected as is | x* of each method projected | y.
+
+    Parameters
+    ----------
+    surface : torch.Tensor
+        s̃ (1, 3, H, W), encoded [0, 1].
+    uncompensated, desired : torch.Tensor
+        (N, 3, H, W) captures of y projected as is, and y.
+    compensated : dict[str, torch.Tensor]
+        Per method, the (N, 3, H, W) captures of its compensation images.
+
+    Returns
+    -------
+    numpy.ndarray
+        The figure as uint8 RGB (rows, cols, 3).
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    columns = {"surface s̃": surface.expand_as(desired), "uncompensated": uncompensated,
+               **{f"{name} (closed loop)": c for name, c in compensated.items()}, "desired y": desired}
     n = desired.shape[0]
-    fig, axes = plt.subplots(n, 4, figsize=(8, 2.1 * n), squeeze=False)
-    titles = ("surface s̃", "uncompensated", "compensated (closed loop)", "desired y")
-    for r in range(n):
-        for c, img in enumerate((surface[0], uncompensated[r], compensated[r], desired[r])):
+    fig, axes = plt.subplots(n, len(columns), figsize=(2 * len(columns), 2.1 * n), squeeze=False)
+    for c, (title, images) in enumerate(columns.items()):
+        for r in range(n):
             ax = axes[r][c]
-            ax.imshow(img.permute(1, 2, 0).clamp(0, 1).numpy())
+            ax.imshow(images[r].permute(1, 2, 0).clamp(0, 1).numpy())
             ax.set_xticks([])
             ax.set_yticks([])
             if r == 0:
-                ax.set_title(titles[c], fontsize=9)
+                ax.set_title(title, fontsize=9)
     fig.tight_layout()
     fig.canvas.draw()
     rgba = np.asarray(fig.canvas.buffer_rgba())
@@ -55,40 +73,60 @@ def figure(surface: torch.Tensor, uncompensated: torch.Tensor, compensated: torc
     return np.ascontiguousarray(rgba[..., :3])
 
 
-def run_demo(out: Path, progress: bool = True) -> dict:
-    """Run the demo into ``out`` (resumable: a finished dataset or run is reused)."""
+def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
+    """Run the demo into ``out`` (resumable: a finished dataset or run is reused).
+
+    Parameters
+    ----------
+    out : path-like
+        Output folder: ``data/``, ``runs/``, ``demo.png`` and ``demo.json`` go there.
+    progress : bool
+        Show progress bars.
+    **overrides
+        Training options over the quick profile (e.g. ``size``, ``n_train``, ``n_test``,
+        ``iters`` for a smaller run); the dataset is rendered at the resulting size and counts.
+
+    Returns
+    -------
+    dict
+        What ``demo.json`` holds: ``uncompensated``, per method ``surrogate``, ``closed_loop``
+        and ``train_seconds``, and ``oracle`` (iterative refinement rows).
+    """
     out = Path(out)
-    prof = PROFILES[PROFILE]
+    prof = {**PROFILES[PROFILE], **{k: v for k, v in overrides.items() if v is not None}}
     setup = load_setup(scene_path("default"))
     spec = FrameSpec(prof["n_train"], prof["n_test"], (prof["size"],) * 2)
     setup_dir = write_setup(out / "data", setup, spec, progress=progress)
-    results = {}
     data = load_setup_data(setup_dir, prof["n_train"], prof["n_test"])
     sim = simulator_for(setup_dir)
     y = data.test.frames
-    lines = ["| method                             |  PSNR  |  RMSE  |  SSIM  |",
-             "|------------------------------------|--------|--------|--------|"]
-    results["uncompensated"] = evaluate(data.test.captures, y)
-    lines.append(_row("uncompensated", results["uncompensated"]))
+    lines = [f"| {'method':<40} |  PSNR  |  RMSE  |  SSIM  |", f"|{'-' * 42}|--------|--------|--------|"]
+    results = {"uncompensated": evaluate(data.test.captures, y)}
+    lines.append(_row("uncompensated (y projected as is)", results["uncompensated"]))
+    captures = {}
     for name in METHODS:
         run_dir = out / "runs" / f"default-{name}"
         if not (run_dir / "metrics.json").exists():
-            train_run(setup_dir, make_config(PROFILE, method=name), run_dir, progress, overwrite=True)
+            train = {k: v for k, v in overrides.items() if k != "size"}
+            train_run(setup_dir, make_config(PROFILE, method=name, **train), run_dir, progress,
+                      overwrite=True)
         metrics = json.loads((run_dir / "metrics.json").read_text())
         method, _ = load_run(run_dir)
-        x_star = method.predict(y, data.surface)
-        captured = project(sim, x_star, CLOSED_LOOP_STREAM)
-        closed = evaluate(captured, y)
+        closed, captured = closed_loop(method, data, sim, return_captures=True)
+        captures[name] = captured[:N_FIGURE]
         results[name] = {"surrogate": {k: metrics[k] for k in ("psnr", "rmse", "ssim")},
                          "closed_loop": closed, "train_seconds": metrics["train_seconds"]}
-        lines.append(_row(f"{name} (surrogate π†(x̃) vs x)", metrics))
-        lines.append(_row(f"{name} (closed loop: capture vs y)", closed))
-        if name == METHODS[0]:
-            grid = figure(data.surface, data.test.captures[:N_FIGURE], captured[:N_FIGURE], y[:N_FIGURE])
-            write_png(out / "demo.png", grid)
+        lines.append(_row(f"{name}: surrogate π†(x̃) vs x", metrics))
+        lines.append(_row(f"{name}: closed loop, capture vs y", closed))
+    results["oracle"] = iterative_refinement(data, sim, report=(ORACLE_ITERATIONS,))
+    lines.append(_row(f"oracle: feedback, {ORACLE_ITERATIONS} it. ({ORACLE_ITERATIONS + 1} projections)",
+                      results["oracle"][-1]))
+    write_png(out / "demo.png", figure(data.surface, data.test.captures[:N_FIGURE], captures, y[:N_FIGURE]))
     write_json(out / "demo.json", results)
+    reachable = results[METHODS[0]]["closed_loop"]["reachable_fraction"]
     print(f"\nprocam demo: default setup, {PROFILE} profile ({prof['size']}² px, "
           f"{prof['n_train']} train / {prof['n_test']} test pairs)\n")
     print("\n".join(lines))
-    print(f"\nfigure -> {out / 'demo.png'}; numbers -> {out / 'demo.json'}")
+    print(f"\n{100 * reachable:.1f} % of the desired pixels are physically reachable on this surface.")
+    print(f"figure -> {out / 'demo.png'}; numbers -> {out / 'demo.json'}")
     return results
