@@ -26,8 +26,13 @@ from compensation.methods import METHODS
 from compensation.metrics import evaluate
 from compensation.train import PROFILES, make_config, train_run
 from sim.dataset import FrameSpec, write_json, write_setup, write_text
+from sim.pngio import to_uint8, write_png
 
 METRICS = ("psnr", "rmse", "ssim")
+CL_COLUMNS = (*METRICS, "psnr_reachable", "infer_ms_per_frame")
+"""Closed-loop keys shown in the tables (the last only for methods)."""
+N_MASK_FIGURE = 4
+"""Test images per setup in ``reachable/<setup>.png``."""
 TABLE2 = dict(n_train=32, iters=500, batch=32)
 """The paper's fine-tuning setting for Table 2."""
 LOSSES = ("l1", "l2", "ssim", "l1+ssim")
@@ -162,7 +167,7 @@ def run_bench(suite: list, out: Path, cfg: BenchConfig, data_root: Path | None =
             else:
                 metrics = train_run(data_root / job.setup, _train_config(cfg, job), run_dir, progress,
                                     overwrite=True)
-            if cfg.closed_loop and "closed_loop" not in metrics:
+            if cfg.closed_loop and "psnr_reachable" not in metrics.get("closed_loop", {}):
                 metrics = _add_closed_loop(run_dir, data_root / job.setup, cfg.tests)
         except Exception as exc:  # one failure must not lose the others' results
             failures.append({**asdict(job), "error": f"{type(exc).__name__}: {exc}",
@@ -170,14 +175,31 @@ def run_bench(suite: list, out: Path, cfg: BenchConfig, data_root: Path | None =
             continue
         rows.append({**asdict(job), "extra": dict(job.extra), "run": str(run_dir), **metrics})
 
-    uncompensated = {s: evaluate(*_test_pair(data_root / s, cfg.tests)) for s in setups}
+    masks = out / "reachable" if cfg.closed_loop else None
+    uncompensated = {s: _uncompensated(data_root / s, cfg.tests, masks) for s in setups}
     oracle = _oracle(data_root, setups, cfg.tests) if cfg.closed_loop else {}
     return _write_tables(out, cfg, rows, failures, uncompensated, oracle)
 
 
-def _test_pair(setup_dir: Path, n_test: int):
+def _uncompensated(setup_dir: Path, n_test: int, masks: Path | None) -> dict:
+    """Scores of the test captures x̃ against x.
+
+    With a ``masks`` folder (closed loop), also the closed-loop scores of y projected as is (its
+    captures are the test captures), and ``masks/<setup>.png``: the first test images with their
+    physically unreachable pixels tinted magenta.
+    """
     data = load_setup_data(setup_dir, n_train=1, n_test=n_test)
-    return data.test.captures, data.test.frames
+    captures, y = data.test.captures, data.test.frames
+    scores = evaluate(captures, y)
+    if masks is not None:
+        from compensation.closed_loop import closed_loop_scores, reachable_mask, reachable_overlay
+
+        mask = reachable_mask(data, y)
+        scores["closed_loop"] = closed_loop_scores(captures, y, mask)
+        k = min(N_MASK_FIGURE, y.shape[0])
+        strip = reachable_overlay(y[:k], mask[:k]).permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
+        write_png(masks / f"{setup_dir.name}.png", to_uint8(strip.numpy()))
+    return scores
 
 
 def _add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:
@@ -244,15 +266,15 @@ def _write_tables(out: Path, cfg: BenchConfig, rows, failures, uncompensated, or
     cl = cfg.closed_loop
     head = ["method", "n_train", "PSNR", "RMSE", "SSIM", "train s", "setups"]
     if cl:
-        head += ["CL PSNR", "CL RMSE", "CL SSIM", "infer ms/frame"]
+        head += ["CL PSNR", "CL RMSE", "CL SSIM", "CL PSNR reachable", "infer ms/frame"]
 
     def line(name, n, group):
         row = [name, n] + [_mean(group, m) for m in METRICS] + [_mean(group, "train_seconds"), len(group)]
-        return row + ([_mean(group, m, "closed_loop") for m in (*METRICS, "infer_ms_per_frame")] if cl else [])
+        return row + ([_mean(group, m, "closed_loop") for m in CL_COLUMNS] if cl else [])
 
     unc = list(uncompensated.values())
-    unc_row = ["uncompensated", "-"] + [float(np.mean([u[m] for u in unc])) for m in METRICS] + ["-", len(unc)]
-    unc_row += ["-"] * 4 if cl else []
+    unc_row = ["uncompensated", "-"] + [_mean(unc, m) for m in METRICS] + ["-", len(unc)]
+    unc_row += [_mean(unc, m, "closed_loop") for m in CL_COLUMNS[:-1]] + ["-"] if cl else []
     if "1" in cfg.tables:
         t1 = [r for r in rows if r["table"] == "1"]
         body = [unc_row] + [line(m, n, [r for r in t1 if r["method"] == m and r["n_train"] == n])
@@ -260,10 +282,14 @@ def _write_tables(out: Path, cfg: BenchConfig, rows, failures, uncompensated, or
         for k in sorted({row["iterations"] for rs in oracle.values() for row in rs}):
             group = [row for rs in oracle.values() for row in rs if row["iterations"] == k]
             body.append([f"iterative refinement ({k} it., {group[0]['projections']} proj.)", "-", "-", "-", "-",
-                         "-", len(group)] + [_mean(group, m) for m in METRICS] + ["-"])
+                         "-", len(group)] + [_mean(group, m) for m in CL_COLUMNS[:-1]] + ["-"])
+        note = ""
+        if cl:
+            reach = 100 * _mean(unc, "reachable_fraction", "closed_loop")
+            note = (_correlation_note(rows) + f" {reach:.1f} % of the desired pixels are physically "
+                    "reachable (mean over setups); CL PSNR reachable scores those pixels only.")
         _table(out / "table1", f"Table 1: methods x training-set size, mean over {len(unc)} setups "
-               f"({cfg.profile} profile, {cfg.canonical}² px, {cfg.tests} test pairs each)", head, body,
-               _correlation_note(rows) if cl else "")
+               f"({cfg.profile} profile, {cfg.canonical}² px, {cfg.tests} test pairs each)", head, body, note)
         files["table1"] = out / "table1.md"
     if "2" in cfg.tables:
         t2 = [r for r in rows if r["table"] == "2"]
@@ -282,11 +308,11 @@ def _write_tables(out: Path, cfg: BenchConfig, rows, failures, uncompensated, or
     per = [[r["table"], r["setup"], r["method"], r["n_train"], r["loss"], "pretrained" if r["init"] else "he",
             cfg.overrides.get("seed", 0)] + [r[m] for m in METRICS]
            + [r["uncompensated"][m] for m in METRICS] + [r["train_seconds"]]
-           + ([r.get("closed_loop", {}).get(m, float("nan")) for m in METRICS] if cl else [])
+           + ([r.get("closed_loop", {}).get(m, float("nan")) for m in CL_COLUMNS[:-1]] if cl else [])
            for r in rows]
     _table(out / "per_setup", "Per-setup results", ["table", "setup", "method", "n_train", "loss", "init", "seed",
            "PSNR", "RMSE", "SSIM", "unc PSNR", "unc RMSE", "unc SSIM", "train s"]
-           + (["CL PSNR", "CL RMSE", "CL SSIM"] if cl else []), per)
+           + (["CL PSNR", "CL RMSE", "CL SSIM", "CL PSNR reachable"] if cl else []), per)
     files["per_setup"] = out / "per_setup.csv"
     write_json(out / "failures.json", {"failures": failures})
     write_json(out / "bench.json", {"config": {**asdict(cfg), "methods": list(cfg.methods)},

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from compensation.data import SetupData
-from compensation.metrics import evaluate
+from compensation.metrics import evaluate, masked_scores
 from sim.capture import Simulator
 from sim.errors import DatasetError
 from sim.pngio import to_uint8
@@ -78,6 +78,34 @@ def reachable_mask(data: SetupData, desired: torch.Tensor) -> torch.Tensor:
     return ok.all(dim=1)
 
 
+def reachable_overlay(desired: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """The desired images with their unreachable pixels tinted magenta (for figures).
+
+    Parameters
+    ----------
+    desired : torch.Tensor
+        y, float32 (N, 3, H, W) in [0, 1].
+    mask : torch.Tensor
+        bool (N, H, W) from :func:`reachable_mask`.
+
+    Returns
+    -------
+    torch.Tensor
+        float32 (N, 3, H, W): y where reachable, ``0.3 · y + 0.7 · magenta`` elsewhere.
+    """
+    magenta = torch.tensor([1.0, 0.0, 1.0]).view(1, 3, 1, 1)
+    return torch.where(mask[:, None], desired, 0.3 * desired + 0.7 * magenta)
+
+
+def closed_loop_scores(captured: torch.Tensor, y: torch.Tensor, mask: torch.Tensor, batch_size: int = 64) -> dict:
+    """Closed-loop scores of captures against y: ``psnr``/``rmse``/``ssim`` over all pixels,
+    ``psnr_reachable``/``rmse_reachable`` over the reachable ones (``mask``, bool (N, H, W)) and
+    ``reachable_fraction``."""
+    reach = masked_scores(captured, y, mask)
+    return {**evaluate(captured, y, batch_size=batch_size), "psnr_reachable": reach["psnr"],
+            "rmse_reachable": reach["rmse"], "reachable_fraction": float(mask.float().mean())}
+
+
 def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
                 batch_size: int = 64, return_captures: bool = False) -> dict | tuple[dict, torch.Tensor]:
     """Closed-loop score of a fitted method.
@@ -98,9 +126,10 @@ def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor |
     Returns
     -------
     dict
-        ``psnr``, ``rmse``, ``ssim`` of the captured result against y, plus
-        ``reachable_fraction`` (share of pixels y can be produced at), ``projections`` and
-        ``infer_ms_per_frame`` (wall-clock of π† per frame, batched).
+        ``psnr``, ``rmse``, ``ssim`` of the captured result against y; ``psnr_reachable`` and
+        ``rmse_reachable`` over the pixels of :func:`reachable_mask` only; ``reachable_fraction``
+        (share of pixels y can be produced at), ``projections`` and ``infer_ms_per_frame``
+        (wall-clock of π† per frame, batched).
     torch.Tensor
         Only with ``return_captures``: the captures, float32 (N, 3, H, W) in [0, 1].
     """
@@ -109,8 +138,7 @@ def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor |
     x_star = method.predict(y, data.surface, batch_size=batch_size)
     infer_ms = 1000 * (time.perf_counter() - t0) / y.shape[0]
     captured = project(sim, x_star, CLOSED_LOOP_STREAM)
-    scores = evaluate(captured, y, batch_size=batch_size)
-    scores = {**scores, "reachable_fraction": float(reachable_mask(data, y).float().mean()),
+    scores = {**closed_loop_scores(captured, y, reachable_mask(data, y), batch_size),
               "projections": int(y.shape[0]), "infer_ms_per_frame": round(infer_ms, 3)}
     return (scores, captured) if return_captures else scores
 
@@ -129,15 +157,17 @@ def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor 
     Returns
     -------
     list[dict]
-        One row per k in ``report``: ``iterations`` (k), the closed-loop ``psnr``/``rmse``/``ssim``
-        of cₖ against y, and ``projections`` spent so far ((k + 1) per frame).
+        One row per k in ``report``: ``iterations`` (k), the closed-loop scores of cₖ against y
+        (as :func:`closed_loop`'s) and ``projections`` spent so far ((k + 1) per frame).
     """
     y = data.test.frames if desired is None else desired
+    mask = reachable_mask(data, y)
     x = y.clone()
     rows = []
     for k in range(max(report) + 1):
         captured = project(sim, x, CLOSED_LOOP_STREAM + 1 + k)
         if k in report:
-            rows.append({"iterations": k, **evaluate(captured, y), "projections": int(y.shape[0]) * (k + 1)})
+            rows.append({"iterations": k, **closed_loop_scores(captured, y, mask),
+                         "projections": int(y.shape[0]) * (k + 1)})
         x = (x + gain * (y - captured)).clamp(0, 1)
     return rows

@@ -128,6 +128,43 @@ def ssim(pred: Tensor, target: Tensor) -> float:
     return ssim_per_image(pred, target).mean().item()
 
 
+def masked_scores(pred: Tensor, target: Tensor, mask: Tensor) -> dict[str, float]:
+    """PSNR and RMSE over the pixels a mask selects (all channels, all images pooled).
+
+    The definitions of :func:`psnr` and :func:`rmse` with the MSE taken over the selected pixels
+    only; SSIM is windowed and has no masked form here.
+
+    Parameters
+    ----------
+    pred, target : Tensor
+        (N, 3, H, W) images in [0, 1].
+    mask : Tensor
+        bool (N, H, W), True where a pixel counts.
+
+    Returns
+    -------
+    dict
+        ``psnr`` (dB) and ``rmse``; both ``nan`` when the mask selects nothing.
+
+    Examples
+    --------
+    >>> x, y = torch.zeros(1, 3, 2, 2), torch.zeros(1, 3, 2, 2)
+    >>> y[..., 0, 0] = 1.0  # a wrong pixel, masked out
+    >>> masked_scores(x, y, torch.tensor([[[False, True], [True, True]]]))["rmse"]
+    0.0
+    """
+    _check_pair(pred, target)
+    if mask.shape != (pred.shape[0], *pred.shape[2:]):
+        raise ValueError(f"masked_scores: mask must have shape {(pred.shape[0], *pred.shape[2:])}, "
+                         f"got {tuple(mask.shape)}")
+    n = int(mask.sum()) * pred.shape[1]
+    if n == 0:
+        return {"psnr": math.nan, "rmse": math.nan}
+    err = ((pred.double() - target.double()) ** 2).sum(dim=1)
+    mean_squared = err[mask].sum().item() / n
+    return {"psnr": psnr_from_mse(mean_squared), "rmse": rmse_from_mse(mean_squared)}
+
+
 def evaluate(pred: Tensor, target: Tensor, batch_size: int = 64) -> dict[str, float]:
     """PSNR, RMSE and SSIM of a whole test set, streamed over batches of ``batch_size`` images.
 

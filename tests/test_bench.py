@@ -6,6 +6,7 @@ import json
 import shutil
 from pathlib import Path
 
+import imageio.v3 as iio
 import pytest
 
 from compensation.cli import main
@@ -68,6 +69,11 @@ def test_all_tables_and_methods(bench):
     for r in t1:
         if r["method"] in METHOD_LIST.split(","):
             assert r["setups"] == "2" and float(r["PSNR"]) > 0 and float(r["CL PSNR"]) > 0
+            assert float(r["CL PSNR reachable"]) > 0
+    unc = next(r for r in t1 if r["method"] == "uncompensated")  # y projected as is: closed loop too
+    assert float(unc["CL PSNR"]) > 0 and unc["infer ms/frame"] == "-"
+    for s in ("s1", "s2"):  # the reachable masks, the (2) test images side by side
+        assert iio.imread(out / "reachable" / f"{s}.png").shape == (32, 2 * 32, 3)
     assert len(_rows(out / "table2.csv")) == 2
     assert [r["method"] for r in _rows(out / "table3.csv")] == [
         f"CompenNet, loss {loss}" for loss in ("l1", "l2", "ssim", "l1+ssim")]

@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 import torch
 
-from compensation.closed_loop import closed_loop, iterative_refinement, reachable_mask, simulator_for
+from compensation.closed_loop import (closed_loop, iterative_refinement, reachable_mask, reachable_overlay,
+                                      simulator_for)
+from compensation.metrics import masked_scores, psnr, rmse
 from compensation.data import load_setup_data
 from compensation.methods import Method
 from conftest import tiny_setup
@@ -65,6 +67,32 @@ def test_identity_on_a_white_surface_reproduces_the_desired_image(white):
     # are beyond reach
     assert 0.7 < scores["reachable_fraction"] < 1.0
     assert scores["projections"] == 4
+    # what the projector can produce it does produce: better on the reachable pixels than overall
+    assert scores["psnr_reachable"] > scores["psnr"]
+
+
+def test_masked_scores_match_the_plain_metrics():
+    g = torch.Generator().manual_seed(0)
+    pred, target = torch.rand(3, 3, 16, 16, generator=g), torch.rand(3, 3, 16, 16, generator=g)
+    everything = torch.ones(3, 16, 16, dtype=torch.bool)
+    full = masked_scores(pred, target, everything)
+    assert full["psnr"] == pytest.approx(psnr(pred, target), abs=1e-12)
+    assert full["rmse"] == pytest.approx(rmse(pred, target), abs=1e-12)
+    half = everything.clone()
+    half[:, :, 8:] = False
+    part = masked_scores(pred, target, half)
+    assert part["rmse"] == pytest.approx(rmse(pred[..., :8], target[..., :8]), abs=1e-12)
+    assert np.isnan(masked_scores(pred, target, ~everything)["psnr"])
+    with pytest.raises(ValueError, match="mask must have shape"):
+        masked_scores(pred, target, everything[:, :8])
+
+
+def test_reachable_overlay_tints_only_unreachable_pixels():
+    y = torch.full((1, 3, 2, 2), 0.5)
+    mask = torch.tensor([[[True, False], [True, True]]])
+    out = reachable_overlay(y, mask)
+    assert torch.equal(out[0, :, 0, 0], y[0, :, 0, 0])
+    assert torch.allclose(out[0, :, 0, 1], torch.tensor([0.85, 0.15, 0.85]))
 
 
 def test_iterative_refinement_lowers_the_error_monotonically(textured):
