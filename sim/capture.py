@@ -68,12 +68,17 @@ class Simulator:
         self.timings["render"] += time.perf_counter() - t0
         return out
 
+    def expose(self, radiance: np.ndarray, stream: int, index: int) -> np.ndarray:
+        """The camera model on linear radiance: 8-bit capture at camera resolution, noise seeded
+        by ``(seed, stream, index)``. Keeps no timings, so worker threads may call it."""
+        rng = np.random.default_rng([self.setup.render.seed, stream, index])
+        return camera.capture(radiance, self.setup.camera, rng)
+
     def raw(self, frame: np.ndarray, stream: int, index: int) -> np.ndarray:
         """8-bit capture at camera resolution (noise seeded by ``(seed, stream, index)``)."""
         radiance = self.linear(frame, stream, index)
         t0 = time.perf_counter()
-        rng = np.random.default_rng([self.setup.render.seed, stream, index])
-        out = camera.capture(radiance, self.setup.camera, rng)
+        out = self.expose(radiance, stream, index)
         self.timings["camera"] += time.perf_counter() - t0
         return out
 

@@ -16,6 +16,8 @@ import json
 import os
 import tempfile
 import time
+from collections import defaultdict, deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from importlib.metadata import version
 from pathlib import Path
@@ -23,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from sim import images
+from sim import images, registration
 from sim.capture import STREAMS, Simulator
 from sim.errors import DatasetError
 from sim.fidelity import describe
@@ -126,6 +128,38 @@ def write_frames(root: Path, spec: FrameSpec) -> dict[str, np.ndarray]:
     return frames
 
 
+def capture_workers() -> int:
+    """Worker threads for the camera model, warp and PNG writes: the usable cores, at most 4.
+
+    Rendering stays on the calling thread (one Mitsuba scene); each capture's noise is seeded by
+    its own ``(seed, stream, index)``, so the output does not depend on the number of workers.
+    """
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return max(1, min(4, cores))
+
+
+def _finish_capture(sim: Simulator, radiance: np.ndarray | None, raw: np.ndarray | None, stream: int,
+                    index: int, raw_file: Path, warp_file: Path) -> dict[str, float]:
+    """Camera model (unless ``raw`` was read back), warp and atomic PNG writes of one capture.
+
+    Runs in a worker thread; returns the seconds spent per phase (``camera``, ``registration``,
+    ``png``) for the caller to add up.
+    """
+    seconds = {}
+    t0 = time.perf_counter()
+    if raw is None:
+        raw = sim.expose(radiance, stream, index)
+        seconds["camera"] = time.perf_counter() - t0
+        write_png(raw_file, raw)
+    t1 = time.perf_counter()
+    warped = registration.warp(raw, sim.warp_map)
+    t2 = time.perf_counter()
+    write_png(warp_file, warped)
+    seconds["registration"] = t2 - t1
+    seconds["png"] = (t1 - t0 - seconds.get("camera", 0.0)) + time.perf_counter() - t2
+    return seconds
+
+
 def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None = None,
                 spp: int | None = None, progress: bool = True, overwrite: bool = False) -> Path:
     """Render one setup into ``root/<setup.name>`` (resuming an interrupted run).
@@ -173,23 +207,32 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
             if not all((out / "cam" / kind / split / image_name(i)).exists() for kind in ("raw", "warp"))]
     t_start = time.perf_counter()
     sim = Simulator(setup, spec.size, fidelity, spp, cache_dir=out / "cache")
-    png_seconds = 0.0
-    with tqdm(total=len(todo), desc=f"render {setup.name}", unit="capture", disable=not progress) as bar:
+    workers = capture_workers()
+    finish_seconds: dict[str, float] = defaultdict(float)
+    with ThreadPoolExecutor(workers) as pool, \
+            tqdm(total=len(todo), desc=f"render {setup.name}", unit="capture", disable=not progress) as bar:
+        pending: deque = deque()
+
+        def collect() -> None:
+            for phase, sec in pending.popleft().result().items():  # re-raises a worker's error
+                finish_seconds[phase] += sec
+            bar.update()
+
         for split, i in todo:
             raw_file = out / "cam" / "raw" / split / image_name(i)
             t0 = time.perf_counter()
-            done = raw_file.exists()  # written atomically: complete if present
-            raw = read_png(raw_file) if done else None
-            png_seconds += time.perf_counter() - t0
-            if raw is None:
-                raw = sim.raw(frames[split][i - 1], STREAMS[split], i)
-            warped = sim.warp(raw)
-            t0 = time.perf_counter()
-            if not done:
-                write_png(raw_file, raw)
-            write_png(out / "cam" / "warp" / split / image_name(i), warped)
-            png_seconds += time.perf_counter() - t0
-            bar.update()
+            raw = read_png(raw_file) if raw_file.exists() else None  # written atomically: complete
+            finish_seconds["png"] += time.perf_counter() - t0
+            radiance = sim.linear(frames[split][i - 1], STREAMS[split], i) if raw is None else None
+            pending.append(pool.submit(_finish_capture, sim, radiance, raw, STREAMS[split], i, raw_file,
+                                       out / "cam" / "warp" / split / image_name(i)))
+            while len(pending) > 2 * workers:  # bounded memory: a few captures in flight
+                collect()
+        while pending:
+            collect()
+    png_seconds = finish_seconds.pop("png", 0.0)  # phases are summed over the worker threads
+    for phase, sec in finish_seconds.items():
+        sim.timings[phase] += sec
     rendered_seconds = time.perf_counter() - t_start
     homography = sim.homography_check()
     r = sim.renderer
@@ -213,6 +256,7 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         "frames": spec.source(),
         "projector_defocus_px": r.defocus_px,
         "captures_this_run": len(todo),
+        "capture_workers": workers,
         "timings_s": {**{k: round(v, 4) for k, v in sim.timings.items()}, "png": round(png_seconds, 4),
                       "total": round(rendered_seconds, 4)},
         "captures_per_second": round(len(todo) / rendered_seconds, 3) if todo else None,

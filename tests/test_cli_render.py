@@ -99,6 +99,21 @@ def test_same_seed_same_bytes_other_seed_other_noise(rendered, tmp_path):
     assert 0 < np.abs(a.astype(int) - b.astype(int)).mean() < 10
 
 
+def test_output_does_not_depend_on_the_worker_threads(rendered, tmp_path, monkeypatch):
+    """The camera model, warp and PNG writes run on worker threads; one worker gives the same
+    bytes as the default pool, capture for capture."""
+    import sim.dataset
+
+    monkeypatch.setattr(sim.dataset, "capture_workers", lambda: 1)
+    assert main(["render", str(_setup_file(tmp_path)), "--out", str(tmp_path / "one"), *ARGS]) == 0
+    assert json.loads((tmp_path / "one" / "tiny" / "meta.json").read_text())["capture_workers"] == 1
+    pngs = sorted((rendered / "data" / "tiny" / "cam").rglob("*.png"))
+    assert len(pngs) == 2 * (126 + 4 + 2)
+    for p in pngs:
+        twin = tmp_path / "one" / p.relative_to(rendered / "data")
+        assert twin.read_bytes() == p.read_bytes(), twin
+
+
 def test_bad_setup_writes_nothing(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text(SETUP.format(seed=0).replace("spp = 4", "spp = -4"))
