@@ -18,8 +18,11 @@ demo: venv llvm
 test: venv llvm
 	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q
 
+# Speed figures, measured side by side (a few minutes on 2 cores); see benchmarks/results/.
 bench: venv llvm
 	$(PY) benchmarks/render.py
+	OMP_WAIT_POLICY=PASSIVE $(PY) benchmarks/train.py
+	$(PY) benchmarks/fidelity.py
 
 venv: $(STAMP)
 
