@@ -7,8 +7,12 @@ different captures never share noise.
 """
 from __future__ import annotations
 
+import os
 import time
-from collections import defaultdict
+from collections import defaultdict, deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
 
 import numpy as np
 
@@ -19,6 +23,45 @@ from sim.setup import Setup
 
 STREAMS = {"ref": 0, "train": 1, "test": 2, "registration": 3}
 """Seed streams of the dataset splits; other users (closed loop) pick streams >= 16."""
+
+Item = TypeVar("Item")
+Result = TypeVar("Result")
+
+
+def capture_workers() -> int:
+    """Worker threads for the per-capture work after rendering: the usable cores, at most 4."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return max(1, min(4, cores))
+
+
+def pipelined(items: Iterable[Item], render: Callable[[Item], object],
+              finish: Callable[[Item, object], Result], workers: int | None = None) -> Iterator[Result]:
+    """``finish(item, render(item))`` for each item, in order: ``render`` on the calling thread
+    (one Mitsuba scene), ``finish`` (camera model, warp, PNG writes: NumPy, OpenCV and zlib
+    release the GIL) on worker threads beside the next render.
+
+    Each capture's noise is seeded by its own ``(seed, stream, index)``, so results do not depend
+    on the number of workers. At most ``2 × workers`` items are in flight (bounded memory); an
+    error in a worker is raised here, at that item.
+
+    Parameters
+    ----------
+    items : iterable
+        Work items, rendered in this order.
+    render, finish : callable
+        The two stages.
+    workers : int, optional
+        Worker threads; :func:`capture_workers` by default.
+    """
+    workers = workers or capture_workers()
+    with ThreadPoolExecutor(workers) as pool:
+        pending: deque = deque()
+        for item in items:
+            pending.append(pool.submit(finish, item, render(item)))
+            while len(pending) > 2 * workers:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
 
 
 class Simulator:
@@ -104,7 +147,19 @@ class Simulator:
         numpy.ndarray
             uint8 (N, H, W, 3) captures in the canonical view.
         """
-        return np.stack([self.warp(self.raw(f, stream, start + k)) for k, f in enumerate(frames)])
+        def finish(k: int, radiance: np.ndarray) -> tuple[np.ndarray, float, float]:
+            t0 = time.perf_counter()
+            raw = self.expose(radiance, stream, start + k)
+            t1 = time.perf_counter()
+            return registration.warp(raw, self.warp_map), t1 - t0, time.perf_counter() - t1
+
+        out = []
+        for warped, camera_s, warp_s in pipelined(range(len(frames)),
+                                                  lambda k: self.linear(frames[k], stream, start + k), finish):
+            self.timings["camera"] += camera_s  # summed over the worker threads
+            self.timings["registration"] += warp_s
+            out.append(warped)
+        return np.stack(out)
 
     def homography_check(self) -> dict:
         """Estimate the camera → canonical homography from projected checkerboards (planar

@@ -16,8 +16,7 @@ import json
 import os
 import tempfile
 import time
-from collections import defaultdict, deque
-from concurrent.futures import ThreadPoolExecutor
+from collections import defaultdict
 from dataclasses import asdict, dataclass
 from importlib.metadata import version
 from pathlib import Path
@@ -26,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from sim import images, registration
-from sim.capture import STREAMS, Simulator
+from sim.capture import STREAMS, Simulator, capture_workers, pipelined
 from sim.errors import DatasetError
 from sim.fidelity import describe
 from sim.pngio import read_png, write_png
@@ -128,22 +127,12 @@ def write_frames(root: Path, spec: FrameSpec) -> dict[str, np.ndarray]:
     return frames
 
 
-def capture_workers() -> int:
-    """Worker threads for the camera model, warp and PNG writes: the usable cores, at most 4.
-
-    Rendering stays on the calling thread (one Mitsuba scene); each capture's noise is seeded by
-    its own ``(seed, stream, index)``, so the output does not depend on the number of workers.
-    """
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return max(1, min(4, cores))
-
-
 def _finish_capture(sim: Simulator, radiance: np.ndarray | None, raw: np.ndarray | None, stream: int,
                     index: int, raw_file: Path, warp_file: Path) -> dict[str, float]:
     """Camera model (unless ``raw`` was read back), warp and atomic PNG writes of one capture.
 
-    Runs in a worker thread; returns the seconds spent per phase (``camera``, ``registration``,
-    ``png``) for the caller to add up.
+    The ``finish`` stage of :func:`sim.capture.pipelined`, on a worker thread; returns the seconds
+    spent per phase (``camera``, ``registration``, ``png``) for the caller to add up.
     """
     seconds = {}
     t0 = time.perf_counter()
@@ -209,27 +198,25 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
     sim = Simulator(setup, spec.size, fidelity, spp, cache_dir=out / "cache")
     workers = capture_workers()
     finish_seconds: dict[str, float] = defaultdict(float)
-    with ThreadPoolExecutor(workers) as pool, \
-            tqdm(total=len(todo), desc=f"render {setup.name}", unit="capture", disable=not progress) as bar:
-        pending: deque = deque()
 
-        def collect() -> None:
-            for phase, sec in pending.popleft().result().items():  # re-raises a worker's error
+    def render(job: tuple[str, int]) -> tuple[np.ndarray | None, np.ndarray | None]:
+        split, i = job
+        raw_file = out / "cam" / "raw" / split / image_name(i)
+        t0 = time.perf_counter()
+        raw = read_png(raw_file) if raw_file.exists() else None  # written atomically: complete
+        finish_seconds["png"] += time.perf_counter() - t0
+        return (sim.linear(frames[split][i - 1], STREAMS[split], i) if raw is None else None), raw
+
+    def finish(job: tuple[str, int], rendered) -> dict[str, float]:
+        split, i = job
+        return _finish_capture(sim, *rendered, STREAMS[split], i, out / "cam" / "raw" / split / image_name(i),
+                               out / "cam" / "warp" / split / image_name(i))
+
+    with tqdm(total=len(todo), desc=f"render {setup.name}", unit="capture", disable=not progress) as bar:
+        for seconds in pipelined(todo, render, finish, workers):
+            for phase, sec in seconds.items():
                 finish_seconds[phase] += sec
             bar.update()
-
-        for split, i in todo:
-            raw_file = out / "cam" / "raw" / split / image_name(i)
-            t0 = time.perf_counter()
-            raw = read_png(raw_file) if raw_file.exists() else None  # written atomically: complete
-            finish_seconds["png"] += time.perf_counter() - t0
-            radiance = sim.linear(frames[split][i - 1], STREAMS[split], i) if raw is None else None
-            pending.append(pool.submit(_finish_capture, sim, radiance, raw, STREAMS[split], i, raw_file,
-                                       out / "cam" / "warp" / split / image_name(i)))
-            while len(pending) > 2 * workers:  # bounded memory: a few captures in flight
-                collect()
-        while pending:
-            collect()
     png_seconds = finish_seconds.pop("png", 0.0)  # phases are summed over the worker threads
     for phase, sec in finish_seconds.items():
         sim.timings[phase] += sec
