@@ -1,4 +1,4 @@
-"""Shared fixtures: Mitsuba variants, tiny setups, JIT cache hygiene."""
+"""Shared fixtures: Mitsuba variants, tiny setups, the synthetic dataset, JIT cache hygiene."""
 from __future__ import annotations
 
 import copy
@@ -41,6 +41,22 @@ VARIANTS = sorted({choose_variant(), FALLBACK})
 def variant(request):
     """Each test using it runs once per available variant (the vectorised one and scalar)."""
     return request.param
+
+
+@pytest.fixture(scope="module")
+def setup_dir(tmp_path_factory):
+    """A finished synthetic dataset (:func:`synthetic.make_dataset` defaults), one per module."""
+    from synthetic import make_dataset
+
+    return make_dataset(tmp_path_factory.mktemp("data"))
+
+
+@pytest.fixture(scope="module")
+def data(setup_dir):
+    """The synthetic dataset loaded with :func:`compensation.data.load_setup_data`."""
+    from compensation.data import load_setup_data
+
+    return load_setup_data(setup_dir)
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -14,11 +14,6 @@ from sim.pngio import read_png, write_png
 from synthetic import albedo_pattern, capture, make_dataset
 
 
-@pytest.fixture(scope="module")
-def setup_dir(tmp_path_factory):
-    return make_dataset(tmp_path_factory.mktemp("data"))
-
-
 @pytest.fixture
 def fresh(tmp_path):
     """A setup of its own, for tests that damage it."""

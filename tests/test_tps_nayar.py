@@ -10,11 +10,10 @@ import torch
 from scipy.interpolate import RBFInterpolator
 
 from compensation import nayar, tps
-from compensation.data import PairSet, SetupData, load_setup_data
+from compensation.data import PairSet, SetupData
 from compensation.methods import get_method
 from compensation.train import TrainConfig, load_run, train_run
 from sim.errors import ProcamError
-from synthetic import make_dataset
 
 STATE = {"tps": tps.STATE_FILE, "tps-textured": tps.STATE_FILE, "nayar": nayar.STATE_FILE}
 
@@ -246,16 +245,6 @@ def test_nayar_needs_the_primary_ramps():
 def fit_config(method: str) -> TrainConfig:
     return TrainConfig(method=method, iters=1, batch=8, eval_batch=3, device="cpu", n_train=None,
                        n_test=None)
-
-
-@pytest.fixture(scope="module")
-def setup_dir(tmp_path_factory):
-    return make_dataset(tmp_path_factory.mktemp("data"))
-
-
-@pytest.fixture(scope="module")
-def data(setup_dir):
-    return load_setup_data(setup_dir)
 
 
 @pytest.mark.parametrize("name", ["tps", "tps-textured", "nayar"])

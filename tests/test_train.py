@@ -10,14 +10,12 @@ import numpy as np
 import pytest
 import torch
 
-from compensation.data import load_setup_data
 from compensation.methods import METHODS, get_method, load_state
 from compensation.metrics import evaluate
 from compensation.train import (PROFILES, TrainConfig, batch_indices, compensate, load_run, make_config,
                                 train_run)
 from sim.errors import ProcamError
 from sim.pngio import read_png, to_uint8
-from synthetic import make_dataset
 
 RUN_FILES = {"config.json", "loss.csv", "loss.png", "model.pt", "metrics.json", "examples.png"}
 
@@ -41,16 +39,6 @@ def _one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
-
-
-@pytest.fixture(scope="module")
-def setup_dir(tmp_path_factory):
-    return make_dataset(tmp_path_factory.mktemp("data"))
-
-
-@pytest.fixture(scope="module")
-def data(setup_dir):
-    return load_setup_data(setup_dir)
 
 
 @pytest.fixture(scope="module")
