@@ -176,30 +176,36 @@ def run_bench(suite: list, out: Path, cfg: BenchConfig, data_root: Path | None =
         rows.append({**asdict(job), "extra": dict(job.extra), "run": str(run_dir), **metrics})
 
     masks = out / "reachable" if cfg.closed_loop else None
-    uncompensated = {s: _uncompensated(data_root / s, cfg.tests, masks) for s in setups}
-    oracle = _oracle(data_root, setups, cfg.tests) if cfg.closed_loop else {}
+    uncompensated, oracle = {}, {}
+    for s in setups:
+        uncompensated[s], oracle_rows = _setup_baselines(data_root / s, cfg.tests, masks)
+        if oracle_rows is not None:
+            oracle[s] = oracle_rows
     return _write_tables(out, cfg, rows, failures, uncompensated, oracle)
 
 
-def _uncompensated(setup_dir: Path, n_test: int, masks: Path | None) -> dict:
-    """Scores of the test captures x̃ against x.
+def _setup_baselines(setup_dir: Path, n_test: int, masks: Path | None) -> tuple[dict, list[dict] | None]:
+    """The method-free rows of one setup: scores of the test captures x̃ against x, and the oracle.
 
-    With a ``masks`` folder (closed loop), also the closed-loop scores of y projected as is (its
-    captures are the test captures), and ``masks/<setup>.png``: the first test images with their
-    physically unreachable pixels tinted magenta.
+    With a ``masks`` folder (closed loop), the uncompensated scores also get the closed-loop scores
+    of y projected as is (its captures are the test captures), ``masks/<setup>.png`` shows the
+    first test images with their physically unreachable pixels tinted magenta, and the iterative
+    refinement rows are returned (``None`` otherwise).
     """
     data = load_setup_data(setup_dir, n_train=1, n_test=n_test)
     captures, y = data.test.captures, data.test.frames
     scores = evaluate(captures, y)
-    if masks is not None:
-        from compensation.closed_loop import closed_loop_scores, reachable_mask, reachable_overlay
+    if masks is None:
+        return scores, None
+    from compensation.closed_loop import (closed_loop_scores, iterative_refinement, reachable_mask,
+                                          reachable_overlay, simulator_for)
 
-        mask = reachable_mask(data, y)
-        scores["closed_loop"] = closed_loop_scores(captures, y, mask)
-        k = min(N_MASK_FIGURE, y.shape[0])
-        strip = reachable_overlay(y[:k], mask[:k]).permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
-        write_png(masks / f"{setup_dir.name}.png", to_uint8(strip.numpy()))
-    return scores
+    mask = reachable_mask(data, y)
+    scores["closed_loop"] = closed_loop_scores(captures, y, mask)
+    k = min(N_MASK_FIGURE, y.shape[0])
+    strip = reachable_overlay(y[:k], mask[:k]).permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
+    write_png(masks / f"{setup_dir.name}.png", to_uint8(strip.numpy()))
+    return scores, iterative_refinement(data, simulator_for(setup_dir))
 
 
 def _add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:
@@ -215,16 +221,6 @@ def _add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:
     metrics["closed_loop"] = scores
     write_json(run_dir / "metrics.json", metrics)
     return metrics
-
-
-def _oracle(data_root: Path, setups: list[str], n_test: int) -> dict:
-    from compensation.closed_loop import iterative_refinement, simulator_for
-
-    rows = {}
-    for s in setups:
-        data = load_setup_data(data_root / s, n_train=1, n_test=n_test)
-        rows[s] = iterative_refinement(data, simulator_for(data_root / s))
-    return rows
 
 
 def _mean(rows: list[dict], key: str, sub: str | None = None) -> float:

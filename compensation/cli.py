@@ -187,7 +187,7 @@ def cmd_compensate(args: argparse.Namespace) -> None:
     import torch
 
     from compensation.train import compensate, load_run
-    from sim.pngio import read_png, to_uint8, write_png
+    from sim.pngio import read_png, to_float, to_uint8, write_png
 
     _, config = load_run(args.run)
     h, w = config["image_size"]
@@ -197,7 +197,7 @@ def cmd_compensate(args: argparse.Namespace) -> None:
         if img.shape[:2] != (h, w):
             img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
         images.append(img)
-    desired = torch.from_numpy(np.stack(images).astype(np.float32) / 255).permute(0, 3, 1, 2)
+    desired = torch.from_numpy(to_float(np.stack(images))).permute(0, 3, 1, 2)
     frames = compensate(args.run, desired).permute(0, 2, 3, 1).numpy()
     out = Path(args.out)
     targets = [out] if len(args.desired) == 1 and out.suffix == ".png" else \

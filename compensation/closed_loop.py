@@ -18,7 +18,7 @@ from compensation.data import SetupData
 from compensation.metrics import evaluate, masked_scores
 from sim.capture import Simulator
 from sim.errors import DatasetError
-from sim.pngio import to_uint8
+from sim.pngio import to_float, to_uint8
 from sim.setup import load_setup
 
 CLOSED_LOOP_STREAM = 16
@@ -59,7 +59,7 @@ def project(sim: Simulator, frames: torch.Tensor, stream: int) -> torch.Tensor:
     """
     stack = to_uint8(frames.permute(0, 2, 3, 1).cpu().numpy())
     caps = sim.capture(stack, stream)
-    return torch.from_numpy(caps.astype(np.float32) / 255.0).permute(0, 3, 1, 2).contiguous()
+    return torch.from_numpy(to_float(caps)).permute(0, 3, 1, 2).contiguous()
 
 
 def reachable_mask(data: SetupData, desired: torch.Tensor) -> torch.Tensor:

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from sim.errors import DatasetError, SetupError
-from sim.pngio import read_png
+from sim.pngio import read_png, to_float
 
 PLAIN_LEVELS = (0.0, 0.25, 0.5, 0.75, 1.0)
 """Per-channel levels of the 5³ plain colours (encoded projector input, 0–1)."""
@@ -62,7 +62,7 @@ def _load(path: Path) -> np.ndarray:
     """A bundled image, read-only float32 (H, W, 3) sRGB-encoded in [0, 1], side <= _MAX_SIDE."""
     with warnings.catch_warnings():  # Pillow warns about palette transparency; harmless here
         warnings.simplefilter("ignore", UserWarning)
-        img = read_png(path).astype(np.float32) / 255.0
+        img = to_float(read_png(path))
     scale = _MAX_SIDE / max(img.shape[:2])
     if scale < 1:
         img = _resize(img, round(img.shape[1] * scale), round(img.shape[0] * scale))
@@ -338,7 +338,7 @@ def load_texture_file(path, resolution) -> np.ndarray:
     except DatasetError as exc:
         raise SetupError(f"surface texture: {exc}") from None
     w, h = _wh(resolution)
-    img = cv2.resize(img.astype(np.float32) / 255.0, (w, h), interpolation=cv2.INTER_AREA)
+    img = cv2.resize(to_float(img), (w, h), interpolation=cv2.INTER_AREA)
     return np.clip(srgb_decode(img), 0, 1)
 
 

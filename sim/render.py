@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 
 from sim import geometry, projector, scene
+from sim.pngio import to_float
 from sim.setup import Setup
 from sim.variant import use_variant
 
@@ -79,7 +80,7 @@ class Renderer:
             float32 (Hp, Wp, 3): response, black level, primaries mixing, then the defocus blur.
         """
         frame = np.asarray(frame)
-        x = frame.astype(np.float32) / 255.0 if frame.dtype == np.uint8 else frame.astype(np.float32)
+        x = to_float(frame) if frame.dtype == np.uint8 else frame.astype(np.float32)
         w, h = self.setup.projector.resolution
         if x.shape[:2] != (h, w):
             shrink = x.shape[0] > h or x.shape[1] > w
