@@ -20,7 +20,7 @@ from compensation.cli import load_setups
 from sim import camera, images
 from sim.capture import Simulator
 from sim.dataset import FrameSpec, write_setup
-from sim.pngio import write_png
+from sim.io import write_png
 from sim.render import Renderer
 
 

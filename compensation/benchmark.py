@@ -26,7 +26,7 @@ from compensation.methods import METHODS
 from compensation.metrics import evaluate
 from compensation.train import PROFILES, make_config, train_run
 from sim.dataset import FrameSpec, write_json, write_setup, write_text
-from sim.pngio import to_uint8, write_png
+from sim.io import to_uint8, write_png
 
 METRICS = ("psnr", "rmse", "ssim")
 CL_COLUMNS = (*METRICS, "psnr_reachable", "infer_ms_per_frame")

@@ -187,7 +187,7 @@ def cmd_compensate(args: argparse.Namespace) -> None:
     import torch
 
     from compensation.train import compensate, load_run
-    from sim.pngio import read_png, to_float, to_uint8, write_png
+    from sim.io import read_png, to_float, to_uint8, write_png
 
     _, config = load_run(args.run)
     h, w = config["image_size"]

@@ -18,7 +18,7 @@ from compensation.data import SetupData
 from compensation.metrics import evaluate, masked_scores
 from sim.capture import Simulator
 from sim.errors import DatasetError
-from sim.pngio import to_float, to_uint8
+from sim.io import to_float, to_uint8
 from sim.setup import load_setup
 
 CLOSED_LOOP_STREAM = 16

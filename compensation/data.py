@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from sim.errors import DatasetError
-from sim.pngio import read_png
+from sim.io import read_png
 
 N_PLAIN = 125
 """Plain colour frames ``ref/img_0001.png`` … ``img_0125.png`` (5³ levels, black … white)."""

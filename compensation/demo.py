@@ -18,7 +18,7 @@ from compensation.closed_loop import (closed_loop, closed_loop_scores, iterative
 from compensation.data import load_setup_data
 from compensation.train import PROFILES, load_run, make_config, train_run
 from sim.dataset import FrameSpec, write_json, write_setup
-from sim.pngio import write_png
+from sim.io import write_png
 from sim.setup import load_setup, scene_path
 
 PROFILE = "quick"

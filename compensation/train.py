@@ -30,7 +30,7 @@ from compensation.losses import LOSSES, get_loss
 from compensation.methods import METHODS, Method, get_method, resolve_device
 from compensation.metrics import evaluate
 from sim.errors import ProcamError
-from sim.pngio import read_png, to_uint8, write_png
+from sim.io import read_png, to_uint8, write_png
 
 PROFILES: dict[str, dict] = {
     # The paper's setting (design.md §7), meant for a GPU.

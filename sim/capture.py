@@ -7,7 +7,6 @@ different captures never share noise.
 """
 from __future__ import annotations
 
-import os
 import time
 from collections import defaultdict, deque
 from collections.abc import Callable, Iterable, Iterator
@@ -17,6 +16,7 @@ from typing import TypeVar
 import numpy as np
 
 from sim import camera, registration
+from sim.cores import usable_cores
 from sim.fidelity import make_renderer, resolve
 from sim.render import mitsuba_seed
 from sim.setup import Setup
@@ -30,8 +30,7 @@ Result = TypeVar("Result")
 
 def capture_workers() -> int:
     """Worker threads for the per-capture work after rendering: the usable cores, at most 4."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return max(1, min(4, cores))
+    return max(1, min(4, usable_cores()))
 
 
 def pipelined(items: Iterable[Item], render: Callable[[Item], object],

@@ -13,8 +13,6 @@ a re-run skips what exists and finishes the rest.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import time
 from collections import defaultdict
 from dataclasses import asdict, dataclass
@@ -28,7 +26,7 @@ from sim import images, registration
 from sim.capture import STREAMS, Simulator, capture_workers, pipelined
 from sim.errors import DatasetError
 from sim.fidelity import describe
-from sim.pngio import read_png, write_png
+from sim.io import read_png, write_json, write_png, write_text
 from sim.setup import Setup, dump_setup
 
 N_REF = 126
@@ -39,23 +37,6 @@ SURFACE_INDEX = 126
 def image_name(index: int) -> str:
     """File name of the 1-based image ``index``: ``img_0001.png``."""
     return f"img_{index:04d}.png"
-
-
-def write_text(path: Path, text: str) -> None:
-    """Write a text file atomically (temporary file, then rename); an identical file is left
-    untouched, so a resumed run rewrites nothing."""
-    if path.exists() and path.read_text() == text:
-        return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
-
-
-def write_json(path: Path, data: dict) -> None:
-    """Write JSON atomically (see :func:`write_text`)."""
-    write_text(path, json.dumps(data, indent=2) + "\n")
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from sim.errors import DatasetError, SetupError
-from sim.pngio import read_png, to_float
+from sim.io import read_png, to_float
 
 PLAIN_LEVELS = (0.0, 0.25, 0.5, 0.75, 1.0)
 """Per-channel levels of the 5³ plain colours (encoded projector input, 0–1)."""

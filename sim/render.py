@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from sim import geometry, projector, scene
-from sim.pngio import to_float
+from sim.io import to_float
 from sim.setup import Setup
 from sim.variant import use_variant
 

@@ -27,6 +27,7 @@ Inter-reflection (a corner) makes ``T`` dense: this level declines such setups
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import time
 import warnings
@@ -39,6 +40,7 @@ import torch
 
 from sim import geometry
 from sim.errors import ProcamError, SetupError
+from sim.io import atomic_write
 from sim.render import Renderer, mitsuba_seed
 from sim.setup import Setup, dump_setup
 
@@ -367,14 +369,12 @@ class TransportOperator:
 
     def save(self, path: Path) -> None:
         """Write the operator to an ``.npz`` file (atomically: temporary file, then rename)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp.npz")
-        np.savez(tmp, rows=self.rows.astype(np.int32), cols=self.cols.astype(np.int32),
+        buffer = io.BytesIO()
+        np.savez(buffer, rows=self.rows.astype(np.int32), cols=self.cols.astype(np.int32),
                  values=self.values, ambient=self.ambient,
                  camera_size=np.array(self.camera_size), projector_size=np.array(self.projector_size),
                  info=np.array(json.dumps(asdict(self.info))))
-        tmp.replace(path)
+        atomic_write(path, buffer.getvalue())
 
     @classmethod
     def load(cls, path: Path) -> "TransportOperator":

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.pngio import to_uint8, write_png
+from sim.io import to_uint8, write_png
 
 OFFSET = 0.15
 """Additive light in the synthetic captures (ambient + projector black), encoded units."""

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from compensation.cli import main
-from sim.pngio import read_png
+from sim.io import read_png
 
 SETUP = """
 name = "tiny"

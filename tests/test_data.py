@@ -10,7 +10,7 @@ import torch
 
 from compensation.data import load_setup_data
 from sim.errors import DatasetError
-from sim.pngio import read_png, write_png
+from sim.io import read_png, write_png
 from synthetic import albedo_pattern, capture, make_dataset
 
 

@@ -9,7 +9,7 @@ from scipy.spatial.distance import cdist
 
 from sim import images
 from sim.errors import DatasetError, SetupError
-from sim.pngio import write_png
+from sim.io import write_png
 
 
 def test_srgb_decode_matches_colour_science():

@@ -12,7 +12,7 @@ import pytest
 
 from sim import images
 from sim.errors import SetupError
-from sim.pngio import write_png
+from sim.io import write_png
 from sim.setup import (AmbientConfig, CameraConfig, ProjectorConfig, RenderConfig, Setup,
                        SurfaceConfig, dump_setup, load_setup, load_suite, parse_setup, scene_path,
                        temperature_rgb)

@@ -15,7 +15,7 @@ from compensation.metrics import evaluate
 from compensation.train import (PROFILES, TrainConfig, batch_indices, compensate, load_run, make_config,
                                 train_run)
 from sim.errors import ProcamError
-from sim.pngio import read_png, to_uint8
+from sim.io import read_png, to_uint8
 
 RUN_FILES = {"config.json", "loss.csv", "loss.png", "model.pt", "metrics.json", "examples.png"}
 

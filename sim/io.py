@@ -1,0 +1,183 @@
+"""Files on disk: atomic writes (bytes, text, JSON, PNG) and 8-bit RGB image reading.
+
+Every file procam writes goes through :func:`atomic_write`: the content lands in a uniquely named
+temporary file beside the destination, which is then renamed over it, so a reader (or a resumed
+run) never sees a truncated file, even when the writer is killed. Files get the permissions the
+process umask allows (as ``open`` would give them), not ``mkstemp``'s 0600.
+
+>>> import tempfile, pathlib
+>>> folder = pathlib.Path(tempfile.mkdtemp())
+>>> write_json(folder / "a.json", {"size": [64, 48]})
+>>> read_json(folder / "a.json")
+{'size': [64, 48]}
+>>> image = np.zeros((2, 3, 3), np.uint8)
+>>> write_png(folder / "img.png", image)
+>>> read_png(folder / "img.png").shape
+(2, 3, 3)
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from sim.errors import DatasetError
+
+_UMASK_LOCK = threading.Lock()
+
+
+def _umask() -> int:
+    """The process umask (read by setting and restoring it, under a lock)."""
+    with _UMASK_LOCK:
+        mask = os.umask(0)
+        os.umask(mask)
+    return mask
+
+
+def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
+    """Write ``data`` to ``path`` atomically: a unique temporary file in the same folder, renamed.
+
+    No fsync: the rename is atomic against a killed process (not against power loss), and an
+    fsync per file would cost more than rendering a capture.
+
+    Parameters
+    ----------
+    path : path-like
+        Destination; its folder is created if needed.
+    data : bytes or str
+        Content; ``str`` is written as UTF-8.
+
+    Raises
+    ------
+    OSError
+        If the folder cannot be created or written (the temporary file is removed).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_text(path: str | os.PathLike, text: str) -> None:
+    """Write a text file atomically; an identical file is left untouched (a resumed run
+    rewrites nothing)."""
+    path = Path(path)
+    if path.is_file() and path.read_text() == text:
+        return
+    atomic_write(path, text)
+
+
+def write_json(path: str | os.PathLike, data) -> None:
+    """Write ``data`` as indented JSON atomically (see :func:`write_text`)."""
+    write_text(path, json.dumps(data, indent=2) + "\n")
+
+
+def read_json(path: str | os.PathLike, what: str = "JSON file") -> dict:
+    """Read a JSON object.
+
+    Raises
+    ------
+    DatasetError
+        If the file is missing, unreadable, not JSON or not an object; the message names the file.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: {what} not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{path}: cannot read {what} ({exc})") from None
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}: expected a JSON object in the {what}, found {type(data).__name__}")
+    return data
+
+
+def read_png(path: str | os.PathLike) -> np.ndarray:
+    """Read an image file as 8-bit RGB.
+
+    Parameters
+    ----------
+    path : path-like
+        PNG (or any format imageio reads) file.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``uint8`` array of shape (H, W, 3), encoded values 0–255. Gray images are repeated to
+        three channels; an alpha channel is dropped.
+
+    Raises
+    ------
+    DatasetError
+        If the file is missing or cannot be decoded.
+    """
+    import imageio.v3 as iio
+
+    path = Path(path)
+    try:
+        img = iio.imread(path)
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: cannot read image ({exc})") from None
+    if img.dtype != np.uint8:
+        if img.dtype == np.uint16:
+            img = (img.astype(np.float64) / 257.0).round().astype(np.uint8)
+        else:
+            raise DatasetError(f"{path}: expected an 8-bit image, found dtype {img.dtype}")
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    elif img.ndim == 3 and img.shape[2] == 4:
+        img = img[..., :3]
+    elif img.ndim != 3 or img.shape[2] != 3:
+        raise DatasetError(f"{path}: expected an RGB image, found shape {img.shape}")
+    return np.ascontiguousarray(img)
+
+
+def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
+    """Write an 8-bit RGB PNG atomically (:func:`atomic_write`).
+
+    Parameters
+    ----------
+    path : path-like
+        Destination; its folder is created if needed.
+    image : numpy.ndarray
+        ``uint8`` array (H, W, 3).
+    """
+    import cv2
+
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"write_png expects uint8 (H, W, 3), got {image.dtype} {image.shape}")
+    ok, encoded = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]))  # OpenCV is BGR
+    if not ok:
+        raise OSError(f"{path}: PNG encoding failed")
+    atomic_write(path, encoded.tobytes())
+
+
+def to_float(image: np.ndarray) -> np.ndarray:
+    """Convert 8-bit encoded values to float32 in [0, 1] (still encoded, not linearised).
+
+    >>> to_float(np.array([0, 51, 255], np.uint8))
+    array([0. , 0.2, 1. ], dtype=float32)
+    """
+    return np.asarray(image, dtype=np.float32) / 255.0
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """Round float values in [0, 1] to 8-bit (values outside are clipped).
+
+    >>> to_uint8(np.array([-0.1, 0.5, 1.2]))
+    array([  0, 128, 255], dtype=uint8)
+    """
+    return np.clip(np.rint(np.asarray(image, dtype=np.float64) * 255.0), 0, 255).astype(np.uint8)
+
