@@ -12,8 +12,8 @@ from pathlib import Path
 
 import torch
 
-from compensation.losses import get_loss
-from compensation.models import CompenNet
+from compensation.evaluation.losses import get_loss
+from compensation.methods.compennet import CompenNet
 
 
 def samples_per_second(size: int, batch: int, steps: int, naive: bool) -> float:
@@ -53,7 +53,8 @@ def main() -> None:
     if args.data:
         import tempfile
 
-        from compensation.train import make_config, train_run
+        from compensation.training.config import make_config
+        from compensation.training.runs import train_run
 
         with tempfile.TemporaryDirectory() as tmp:
             m = train_run(Path(args.data) / "default", make_config("quick"), Path(tmp) / "run")

@@ -1,6 +1,6 @@
-"""The learning side of procam: compensation methods, training, metrics, benchmark and the CLI.
+"""The learning side of procam: compensation methods, their training, their evaluation, the CLI.
 
-Every method registers itself in :data:`compensation.methods.METHODS` when its module is
-imported; importing the baselines here makes the registry complete whichever module comes first.
+Sub-packages: :mod:`compensation.methods` (one module per method and the registry),
+:mod:`compensation.training` (configuration, the training loop, run directories) and
+:mod:`compensation.evaluation` (metrics, losses, closed loop, benchmark tables).
 """
-from compensation import methods, nayar, pix2pix, tps  # noqa: F401

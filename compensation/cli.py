@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 import sys
+import types
+import typing
 from pathlib import Path
 
 from sim.errors import ProcamError
@@ -51,7 +53,7 @@ def cmd_render(args: argparse.Namespace) -> None:
 def add_render(sub) -> None:
     p = sub.add_parser("render", help="render a setup (or suite) into a dataset",
                        description="Render projector frames through a simulated setup into the "
-                                   "dataset layout of design.md §5 (resumable).")
+                                   "dataset layout of docs/architecture.md (resumable).")
     p.add_argument("setup", help="setup or suite file, or a shipped scene name (default, white, …)")
     p.add_argument("--out", default="data", help="dataset root (default: data)")
     p.add_argument("--n-train", type=int, default=500, help="training frames (default 500)")
@@ -131,34 +133,53 @@ def _int_list(text: str) -> tuple[int, ...]:
     return tuple(_positive(t) for t in text.split(","))
 
 
+def _option_type(hint) -> dict:
+    """argparse keywords (``type``, ``choices`` or ``action``) for a dataclass field's type hint."""
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    if typing.get_origin(hint) is typing.Literal:
+        return {"choices": list(typing.get_args(hint))}
+    if args and typing.get_origin(hint) in (types.UnionType, typing.Union):
+        return _option_type(args[0])
+    if hint is bool:
+        return {"action": argparse.BooleanOptionalAction}
+    return {"type": hint}
+
+
 def _training_options(p: argparse.ArgumentParser) -> None:
-    """Options that override a training profile (every TrainConfig value)."""
+    """The profile, the options common to every method and every registered method's own options,
+    generated from their dataclasses (type, choices and the field's docstring as help)."""
+    from compensation.methods import METHODS
+    from compensation.training.config import COMMON, TrainConfig, field_docs, option_owners
+
     p.add_argument("--profile", choices=["quick", "paper"], default="quick",
                    help="quick: CPU-sized; paper: 256², 500 pairs, 1000 iterations, batch 64")
-    p.add_argument("--iters", type=_positive, help="optimiser steps")
-    p.add_argument("--batch", type=_positive, help="training pairs per step")
-    p.add_argument("--lr", type=float, help="Adam learning rate (paper 1e-3)")
-    p.add_argument("--weight-decay", type=float, help="Adam weight decay (paper 1e-4)")
-    p.add_argument("--lr-step", type=_positive, help="decay the learning rate every N steps (800)")
-    p.add_argument("--lr-gamma", type=float, help="learning-rate decay factor (0.2)")
-    p.add_argument("--loss", choices=["l1", "l2", "ssim", "l1+ssim"], help="training loss")
-    p.add_argument("--seed", type=int, help="seed of initialisation and batch order (0)")
-    p.add_argument("--device", help="auto (default), cpu or cuda[:N]")
-    p.add_argument("--amp", action="store_true", default=None, help="mixed precision (CUDA only)")
+    common = p.add_argument_group("options of every method")
+    hints = typing.get_type_hints(TrainConfig)
+    for name in COMMON:
+        common.add_argument(f"--{name.replace('_', '-')}", dest=name, default=None,
+                            help=field_docs(TrainConfig)[name], **_option_type(hints[name]))
+    own = p.add_argument_group("method options (refused for a method that does not use them)")
+    for name, owners in option_owners().items():
+        cls = METHODS[owners[0]].options
+        own.add_argument(f"--{name.replace('_', '-')}", dest=name, default=None,
+                         help=f"[{', '.join(owners)}] {field_docs(cls)[name]}",
+                         **_option_type(typing.get_type_hints(cls)[name]))
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _overrides(args: argparse.Namespace, *names: str) -> dict:
-    keys = ("iters", "batch", "lr", "weight_decay", "lr_step", "lr_gamma", "loss", "seed",
-            "device", "amp") + names
-    return {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
+def _given_options(args: argparse.Namespace) -> dict:
+    """The training options given on the command line (common and method options)."""
+    from compensation.training.config import COMMON, option_owners
+
+    names = (*COMMON, *option_owners())
+    return {k: getattr(args, k) for k in names if getattr(args, k, None) is not None}
 
 
 def cmd_train(args: argparse.Namespace) -> None:
-    from compensation.train import make_config, train_run
+    from compensation.training.config import make_config
+    from compensation.training.runs import train_run
 
-    cfg = make_config(args.profile, method=args.method, init=args.init,
-                      **_overrides(args, "n_train", "n_test"))
+    cfg = make_config(args.profile, args.method, **_given_options(args))
     metrics = train_run(args.setup_dir, cfg, args.out, progress=not args.quiet, overwrite=args.overwrite)
     print(f"procam: {args.method} on {metrics['setup']} -> {args.out}")
     print(f"  surrogate test: PSNR {metrics['psnr']:.2f} dB, RMSE {metrics['rmse']:.4f}, "
@@ -169,13 +190,12 @@ def add_train(sub) -> None:
     from compensation.methods import METHODS
 
     p = sub.add_parser("train", help="train a compensation method on a rendered setup",
-                       description="Train a method on DATA_ROOT/<setup> and write a run directory.")
+                       description="Train a method on DATA_ROOT/<setup> and write a run directory. "
+                                   "Each method takes the common options and its own; an option "
+                                   "the method does not use is refused.")
     p.add_argument("setup_dir", help="a rendered setup folder, e.g. data/default")
     p.add_argument("--method", default="compennet", choices=sorted(METHODS))
     p.add_argument("--out", required=True, help="run directory to create")
-    p.add_argument("--n-train", type=_positive, help="training pairs (first N)")
-    p.add_argument("--n-test", type=_positive, help="test pairs (first N)")
-    p.add_argument("--init", help="run directory to initialise the weights from (pre-training)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run")
     _training_options(p)
     p.set_defaults(func=cmd_train)
@@ -186,11 +206,16 @@ def cmd_compensate(args: argparse.Namespace) -> None:
     import numpy as np
     import torch
 
-    from compensation.train import compensate, load_run
+    from compensation.training.runs import compensate, load_run, run_size
     from sim.io import read_png, to_float, to_uint8, write_png
 
     _, config = load_run(args.run)
-    h, w = config["image_size"]
+    w, h = run_size(config)
+    names = [Path(p).with_suffix(".png").name for p in args.desired]
+    if len(args.desired) > 1 and len(set(names)) < len(names):
+        clash = sorted({n for n in names if names.count(n) > 1})
+        raise ProcamError(f"desired images {', '.join(clash)}: two inputs would write one output "
+                          "file; rename them or compensate them separately")
     images = []
     for path in args.desired:
         img = read_png(path)
@@ -200,8 +225,7 @@ def cmd_compensate(args: argparse.Namespace) -> None:
     desired = torch.from_numpy(to_float(np.stack(images))).permute(0, 3, 1, 2)
     frames = compensate(args.run, desired).permute(0, 2, 3, 1).numpy()
     out = Path(args.out)
-    targets = [out] if len(args.desired) == 1 and out.suffix == ".png" else \
-        [out / Path(p).with_suffix(".png").name for p in args.desired]
+    targets = [out] if len(args.desired) == 1 and out.suffix == ".png" else [out / n for n in names]
     for target, frame in zip(targets, frames):
         write_png(target, to_uint8(frame))
         print(f"procam: projector frame -> {target}")
@@ -218,13 +242,17 @@ def add_compensate(sub) -> None:
 
 
 def cmd_bench(args: argparse.Namespace) -> None:
-    from compensation.benchmark import BenchConfig, run_bench
+    from compensation.evaluation.bench import BenchConfig, run_bench
 
-    suite = load_setups(args.suite)
-    white = load_setups(args.white)[0] if "2" in args.tables else None
+    options = _given_options(args)
+    n_test = options.pop("n_test", None)
+    if "n_train" in options:
+        raise ProcamError("--n-train: the bench takes its training sizes from --sizes")
     cfg = BenchConfig(profile=args.profile, methods=tuple(args.methods.split(",")),
                       sizes=args.sizes, tables=tuple(args.tables.split(",")), size=args.size,
-                      n_test=args.n_test, overrides=_overrides(args), closed_loop=args.closed_loop)
+                      n_test=n_test, overrides=options, closed_loop=args.closed_loop)
+    suite = load_setups(args.suite)
+    white = load_setups(args.white)[0] if "2" in cfg.tables else None
     files = run_bench(suite[:args.limit] if args.limit else suite, Path(args.out), cfg,
                       Path(args.data) if args.data else None, white, progress=not args.quiet)
     for name, path in files.items():
@@ -245,7 +273,6 @@ def add_bench(sub) -> None:
     p.add_argument("--sizes", type=_int_list, default=(125, 250, 500), help="training sizes, e.g. 125,250,500")
     p.add_argument("--tables", default="1,2,3", help="which tables (default 1,2,3)")
     p.add_argument("--size", type=_positive, help="canonical size override (pixels)")
-    p.add_argument("--n-test", type=_positive, help="test pairs override")
     p.add_argument("--white", default="white", help="white-surface setup for pre-training (Table 2)")
     p.add_argument("--limit", type=_positive, help="only the first N setups of the suite")
     p.add_argument("--closed-loop", action="store_true",

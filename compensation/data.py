@@ -1,4 +1,4 @@
-"""Loading one rendered setup (design.md §5) as torch tensors for training and evaluation.
+"""Loading one rendered setup (layout: docs/architecture.md) as torch tensors for training and evaluation.
 
 ```
 DATA_ROOT/{ref,train,test}/img_XXXX.png               projector frames x, shared by all setups

@@ -7,18 +7,18 @@ write a figure: surface, uncompensated, each method's compensated capture, desir
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from compensation.closed_loop import (closed_loop, closed_loop_scores, iterative_refinement, reachable_mask,
-                                      reachable_overlay, simulator_for)
 from compensation.data import load_setup_data
-from compensation.train import PROFILES, load_run, make_config, train_run
-from sim.dataset import FrameSpec, write_json, write_setup
-from sim.io import write_png
+from compensation.evaluation.closed_loop import (closed_loop, closed_loop_scores, iterative_refinement,
+                                                 reachable_mask, reachable_overlay, simulator_for)
+from compensation.training.config import PROFILES, applicable, make_config
+from compensation.training.runs import load_run, train_run
+from sim.dataset import FrameSpec, write_setup
+from sim.io import read_json, write_json, write_png
 from sim.setup import load_setup, scene_path
 
 PROFILE = "quick"
@@ -115,10 +115,9 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
     for name in METHODS:
         run_dir = out / "runs" / f"default-{name}"
         if not (run_dir / "metrics.json").exists():
-            train = {k: v for k, v in overrides.items() if k != "size"}
-            train_run(setup_dir, make_config(PROFILE, method=name, **train), run_dir, progress,
-                      overwrite=True)
-        metrics = json.loads((run_dir / "metrics.json").read_text())
+            train_run(setup_dir, make_config(PROFILE, name, **applicable(name, overrides)), run_dir,
+                      progress, overwrite=True)
+        metrics = read_json(run_dir / "metrics.json", "run metrics")
         method, _ = load_run(run_dir)
         closed, captured = closed_loop(method, data, sim, return_captures=True)
         captures[name] = captured[:N_FIGURE]

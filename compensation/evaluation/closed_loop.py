@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from compensation.data import SetupData
-from compensation.metrics import evaluate, masked_scores
+from compensation.evaluation.metrics import evaluate, masked_scores
 from sim.capture import Simulator
 from sim.errors import DatasetError
 from sim.io import to_float, to_uint8

@@ -34,13 +34,13 @@ import numpy as np
 import torch
 
 from compensation.data import N_PLAIN
-from compensation.methods import Method, load_arrays, register, resolve_device
-from compensation.tps import pixel_samples
+from compensation.methods.base import Method, NoOptions, load_arrays, resolve_device
+from compensation.methods.tps import pixel_samples
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
     from compensation.data import SetupData
-    from compensation.train import TrainConfig
+    from compensation.training.config import TrainConfig
 
 STATE_FILE = "nayar.npz"
 """File name of the fitted model in a run directory (NumPy ``.npz``, no pickles)."""
@@ -213,7 +213,6 @@ def invert_mixing(targets: torch.Tensor, matrix: torch.Tensor, offset: torch.Ten
     return linear.clamp_(0.0, 1.0).pow_(1.0 / gamma)
 
 
-@register
 class NayarMethod(Method):
     """Nayar et al. (2003) per-pixel colour mixing with a global projector gamma, fitted on the
     125 plain-colour pairs.
@@ -225,6 +224,7 @@ class NayarMethod(Method):
     """
 
     name = "nayar"
+    options = NoOptions
 
     def __init__(self, device: str = "auto"):
         self.device = resolve_device(device)

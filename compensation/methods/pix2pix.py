@@ -28,27 +28,25 @@ of its input, every image is predicted alone with the dropout mask drawn from a 
 """
 from __future__ import annotations
 
-import math
 import re
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
-from tqdm import tqdm
 
-from compensation.methods import (CHECKPOINT, Method, load_state, load_weights, register, resolve_device,
-                                  save_state)
+from compensation.methods.base import (CHECKPOINT, Method, Options, load_state, load_weights,
+                                       resolve_device, save_state)
+from compensation.training.loop import train_loop
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
     from compensation.data import SetupData
-    from compensation.train import TrainConfig
+    from compensation.training.config import TrainConfig
 
 PIX2PIX_PROFILES: dict[str, dict] = {
     # The CompenNet paper's baseline: 10,000 iterations at batch 1 (= 20 epochs of 500 pairs, all
@@ -62,8 +60,7 @@ PIX2PIX_PROFILES: dict[str, dict] = {
     # profile's 64².
     "quick": dict(iters=500, batch=1),
 }
-"""pix2pix's own iterations and batch size per training profile, layered over the common profile
-by :func:`compensation.train.make_config` (explicit overrides still win)."""
+"""pix2pix's iterations and batch size per training profile (explicit options still win)."""
 
 NGF = 64
 """Generator filters in the outermost level (channels)."""
@@ -290,14 +287,36 @@ def batch_statistics(model: nn.Module) -> Iterator[None]:
         model.train(was_training)
 
 
-@register
+@dataclass(frozen=True)
+class Pix2PixOptions(Options):
+    """Training options of pix2pix (the published configuration; training is fp32)."""
+
+    iters: int = 10000
+    """Iterations, each one discriminator and one generator step (>= 1; the CompenNet paper's
+    baseline: 10,000 at batch 1, 20 epochs of 500 pairs)."""
+    batch: int = 1
+    """Training pairs per iteration (>= 1; published 1)."""
+    lr: float = LR
+    """Adam learning rate of both networks, constant (> 0; published 2e-4)."""
+    l1_weight: float = LAMBDA_L1
+    """λ, the weight of the ℓ1 term beside the GAN loss (>= 0; published 100)."""
+    init: str | None = None
+    """Run directory whose weights initialise both networks (same U-Net levels)."""
+
+    profiles: ClassVar[dict[str, dict]] = PIX2PIX_PROFILES
+
+    def check(self) -> None:
+        self._positive_ints("iters", "batch")
+        self._require("lr", self.lr > 0, "a positive number")
+        self._require("l1_weight", self.l1_weight >= 0, "a number >= 0")
+
+
 class Pix2PixMethod(Method):
     """pix2pix trained on (x̃, x) pairs, the CompenNet paper's baseline (no surface image).
 
-    ``fit`` takes the iterations, batch size (:data:`PIX2PIX_PROFILES`, layered by ``make_config``),
-    seed and device from the configuration, and pix2pix's own optimiser (Adam :data:`LR`, :data:`BETAS`, constant
-    learning rate, no weight decay) and objective; ``cfg.lr``, ``weight_decay``, ``lr_step``,
-    ``lr_gamma``, ``loss`` and ``amp`` do not apply (training is fp32).
+    ``fit`` takes its options from :class:`Pix2PixOptions` (Adam with :data:`BETAS`, a constant
+    learning rate, no weight decay, the GAN + λ·ℓ1 objective) and the seed and device from the
+    configuration.
 
     Parameters
     ----------
@@ -306,7 +325,7 @@ class Pix2PixMethod(Method):
     """
 
     name = "pix2pix"
-    profiles = PIX2PIX_PROFILES
+    options = Pix2PixOptions
 
     def __init__(self, device: str = "auto"):
         self.device = resolve_device(device)
@@ -332,30 +351,20 @@ class Pix2PixMethod(Method):
             If the image size does not fit the U-Net, ``cfg.init`` does not fit the networks, or a
             loss becomes NaN or infinite.
         """
-        # Imported here: compensation.train imports the method registry.
-        from compensation.train import batch_indices
-
+        opt = cfg.options
         self.device = device = resolve_device(cfg.device)
-        iters, batch = cfg.iters, cfg.batch
-        batch = min(batch, len(data.train))
         torch.manual_seed(cfg.seed)  # initialisation and dropout masks
         model = Pix2Pix(unet_levels(*data.size))
         init_normal(model)
-        if cfg.init is not None:
-            load_weights(model, Path(cfg.init) / CHECKPOINT, self.name)
+        if opt.init is not None:
+            load_weights(model, Path(opt.init) / CHECKPOINT, self.name)
         self.model = model.to(device)
         gen, disc = model.generator, model.discriminator
-        opt_g = torch.optim.Adam(gen.parameters(), lr=LR, betas=BETAS, fused=True)
-        opt_d = torch.optim.Adam(disc.parameters(), lr=LR, betas=BETAS, fused=True)
+        opt_g = torch.optim.Adam(gen.parameters(), lr=opt.lr, betas=BETAS, fused=True)
+        opt_d = torch.optim.Adam(disc.parameters(), lr=opt.lr, betas=BETAS, fused=True)
         captures, frames = data.train.captures.to(device), data.train.frames.to(device)
-        batches = batch_indices(len(data.train), batch, torch.Generator().manual_seed(cfg.seed))
-        losses = torch.zeros(iters, 3, dtype=torch.float64, device=device)  # ℓ1, G GAN, D
 
-        model.train()
-        start = time.perf_counter()
-        bar = tqdm(range(iters), desc=f"train {self.name}", unit="it", disable=not progress)
-        for it in bar:
-            idx = next(batches).to(device)
+        def step(idx: torch.Tensor) -> torch.Tensor:
             cond, real = to_signed(captures[idx]), to_signed(frames[idx])
             fake = gen(cond)
 
@@ -373,23 +382,18 @@ class Pix2PixMethod(Method):
             logits = disc(torch.cat([cond, fake], 1))
             loss_gan = F.binary_cross_entropy_with_logits(logits, torch.ones_like(logits))
             loss_l1 = F.l1_loss(fake, real)
-            (loss_gan + LAMBDA_L1 * loss_l1).backward()
+            (loss_gan + opt.l1_weight * loss_l1).backward()
             opt_g.step()
+            return torch.stack([loss_l1.detach() / 2, loss_gan.detach(), loss_d.detach()])
 
-            losses[it] = torch.stack([loss_l1.detach() / 2, loss_gan.detach(), loss_d.detach()])
-            if it % 10 == 9 or it == iters - 1:
-                values = losses[it].tolist()
-                if not all(math.isfinite(v) for v in values):
-                    raise ProcamError(f"training {self.name} diverged at iteration {it + 1} "
-                                      f"(l1 {values[0]}, G GAN {values[1]}, D {values[2]})")
-                rate = (it + 1) * batch / (time.perf_counter() - start)
-                bar.set_postfix(l1=f"{values[0]:.4f}", samples_per_s=f"{rate:.1f}")
-        seconds = time.perf_counter() - start
+        model.train()
+        result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
+                            ("l1", "G GAN", "D"), f"train {self.name} on {data.name}", progress)
         disc.requires_grad_(True)
-        rows = losses.cpu().tolist()
-        return {"seconds": seconds, "samples_per_second": iters * batch / seconds, "iters": iters,
-                "batch": batch, "final_loss": float(np.mean([r[0] for r in rows[-10:]])),
-                "loss_curve": [(i + 1, r[0], LR) for i, r in enumerate(rows)],
+        rows = result.values
+        return {"seconds": result.seconds, "samples_per_second": result.samples_per_second,
+                "iters": opt.iters, "batch": result.batch, "final_loss": result.final_loss,
+                "loss_curve": [(i + 1, r[0], opt.lr) for i, r in enumerate(rows)],
                 "gan_curve": [(i + 1, r[1], r[2]) for i, r in enumerate(rows)]}
 
     @torch.no_grad()

@@ -1,30 +1,27 @@
-"""One registry of compensation methods π†: captures x̃ (and the surface s̃) → projector frames x.
+"""What every compensation method π† is: captures x̃ (and the surface s̃) → projector frames x.
 
-Every method fits on a :class:`~compensation.data.SetupData`, predicts in batches, and saves to /
-loads from a run directory. Add a method by subclassing :class:`Method` and decorating it with
-:func:`register`::
-
-    @register
-    class MyMethod(Method):
-        name = "my-method"
-        ...
+A method is a :class:`Method` subclass with a registry ``name`` and an :class:`Options` dataclass
+(its own training options, each field documented with unit, range and the paper's value). It fits
+on a :class:`~compensation.data.SetupData`, predicts in batches, and saves to / loads from a run
+directory. The helpers here (device choice, plain state dicts, ``.npz`` states) serve every method.
 """
 from __future__ import annotations
 
 import abc
 import pickle
 import re
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
+import numpy as np
 import torch
 
-from compensation.models import CompenNet
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
     from compensation.data import SetupData
-    from compensation.train import TrainConfig
+    from compensation.training.config import TrainConfig
 
 CHECKPOINT = "model.pt"
 """File name of a run's weights: a plain state dict (tensors only)."""
@@ -85,7 +82,7 @@ def load_state(path: Path) -> dict[str, torch.Tensor]:
     return state
 
 
-def load_arrays(path: Path, keys: tuple[str, ...], what: str) -> dict[str, "np.ndarray"]:
+def load_arrays(path: Path, keys: tuple[str, ...], what: str) -> dict[str, np.ndarray]:
     """Arrays ``keys`` of a method's ``.npz`` state, read without unpickling.
 
     Raises
@@ -94,8 +91,6 @@ def load_arrays(path: Path, keys: tuple[str, ...], what: str) -> dict[str, "np.n
         If the file is missing, unreadable, holds pickled objects or lacks one of ``keys``;
         the message names the file and ``what`` it should hold.
     """
-    import numpy as np
-
     path = Path(path)
     if not path.exists():
         raise ProcamError(f"{path}: {what} not found")
@@ -140,6 +135,48 @@ def load_weights(model: torch.nn.Module, path: Path, what: str) -> None:
     model.load_state_dict(state)
 
 
+@dataclass(frozen=True)
+class Options:
+    """Base of every method's options: a frozen dataclass, one documented field per option.
+
+    Subclasses declare fields with defaults (the paper's values) and a docstring each (unit,
+    range, paper value); :func:`compensation.training.config.field_docs` reads those docstrings
+    for the command line. ``profiles`` holds per-profile defaults (``quick``/``paper``) layered
+    under explicit values; :meth:`check` validates ranges.
+    """
+
+    profiles: ClassVar[dict[str, dict]] = {}
+    """Field values per training profile, layered over the field defaults."""
+
+    def __post_init__(self):
+        self.check()
+
+    def check(self) -> None:
+        """Raise :class:`ProcamError` naming the option and the expected range (none by default)."""
+
+    def _require(self, name: str, ok: bool, expected: str) -> None:
+        """Raise a :class:`ProcamError` "``name`` = value: expected …" unless ``ok``."""
+        if not ok:
+            raise ProcamError(f"option {name} = {getattr(self, name)!r}: expected {expected}")
+
+    def _positive_ints(self, *names: str) -> None:
+        """Check that each named field is an integer >= 1 (None allowed where typed optional)."""
+        for name in names:
+            value = getattr(self, name)
+            self._require(name, value is None or (isinstance(value, int) and not isinstance(value, bool)
+                                                  and value >= 1), "a positive integer")
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The option names, in declaration order."""
+        return tuple(f.name for f in fields(cls))
+
+
+@dataclass(frozen=True)
+class NoOptions(Options):
+    """Options of a method that has none."""
+
+
 class Method(abc.ABC):
     """A compensation method π†: captures in the projector view → projector input frames.
 
@@ -150,13 +187,15 @@ class Method(abc.ABC):
     """
 
     name: ClassVar[str]
-    profiles: ClassVar[dict[str, dict]] = {}
-    """The method's own TrainConfig values per profile, layered over the common profile by
-    :func:`compensation.train.make_config` (empty: the common profile as it is)."""
+    options: ClassVar[type[Options]]
+    """The method's options dataclass."""
 
     @abc.abstractmethod
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True) -> dict:
         """Fit on ``data.train`` (and ``data.ref`` / ``data.surface`` as the method needs).
+
+        ``cfg.options`` is an instance of the method's :attr:`options`; ``cfg.seed`` and
+        ``cfg.device`` are common to every method.
 
         Returns
         -------
@@ -193,92 +232,3 @@ class Method(abc.ABC):
     @abc.abstractmethod
     def load(cls, run_dir: Path, device: str = "auto") -> Method:
         """A fitted method restored from ``run_dir``."""
-
-
-METHODS: dict[str, type[Method]] = {}
-"""Registered methods by name."""
-
-
-def register(cls: type[Method]) -> type[Method]:
-    """Class decorator adding a :class:`Method` subclass to :data:`METHODS` under ``cls.name``."""
-    if cls.name in METHODS:
-        raise ValueError(f"method {cls.name!r} is already registered ({METHODS[cls.name].__name__})")
-    METHODS[cls.name] = cls
-    return cls
-
-
-def get_method(name: str) -> type[Method]:
-    """The method class registered as ``name``.
-
-    Raises
-    ------
-    ValueError
-        If no method has that name; the message lists the registered names.
-    """
-    try:
-        return METHODS[name]
-    except KeyError:
-        raise ValueError(f"unknown method {name!r}; choose one of: {', '.join(sorted(METHODS))}") from None
-
-
-@register
-class CompenNetMethod(Method):
-    """CompenNet (Huang & Ling, CVPR 2019) with the surface branch fed s̃, trained end to end.
-
-    Parameters
-    ----------
-    device : str
-        Torch device for prediction (``"auto"``: CUDA if available); ``fit`` uses the config's.
-    """
-
-    name = "compennet"
-    surface: ClassVar[bool] = True
-    """Whether the network has the surface branch."""
-
-    def __init__(self, device: str = "auto"):
-        self.device = resolve_device(device)
-        self.model: CompenNet | None = None
-
-    def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True) -> dict:
-        # Imported here: compensation.train imports this registry to resolve method names.
-        from compensation.train import fit_network
-
-        self.device = resolve_device(cfg.device)
-        torch.manual_seed(cfg.seed)  # He init of the new network is seeded
-        model = CompenNet(surface=self.surface)
-        if cfg.init is not None:
-            load_weights(model, Path(cfg.init) / CHECKPOINT, self.name)
-        self.model = model.to(self.device)
-        return fit_network(self.model, data, cfg, self.surface, progress)
-
-    @torch.no_grad()
-    def predict(self, captures: torch.Tensor, surface: torch.Tensor, batch_size: int = 64) -> torch.Tensor:
-        if self.model is None:
-            raise ProcamError(f"{self.name}: predict called before fit or load")
-        self.model.eval()
-        features = self.model.surface_features(surface.to(self.device)) if self.surface else None
-        out = [self.model(captures[i:i + batch_size].to(self.device), features=features).float().cpu()
-               for i in range(0, captures.shape[0], batch_size)]
-        return torch.cat(out)
-
-    def save(self, run_dir: Path) -> None:
-        if self.model is None:
-            raise ProcamError(f"{self.name}: nothing to save before fit or load")
-        save_state(self.model, Path(run_dir) / CHECKPOINT)
-
-    @classmethod
-    def load(cls, run_dir: Path, device: str = "auto") -> CompenNetMethod:
-        method = cls(device)
-        model = CompenNet(surface=cls.surface)
-        load_weights(model, Path(run_dir) / CHECKPOINT, cls.name)
-        method.model = model.to(method.device)
-        return method
-
-
-@register
-class CompenNetNoSurfMethod(CompenNetMethod):
-    """CompenNet without the surface branch ("CompenNet w/o surf" of the paper)."""
-
-    name = "compennet-nosurf"
-    surface = False
-

@@ -1,6 +1,6 @@
 """Image-quality metrics of the CompenNet paper, over *all* test images.
 
-Definitions (design document, section 7), for predictions and targets (N, 3, H, W) in [0, 1]:
+Definitions (those of the CompenNet paper and its official code), for predictions and targets (N, 3, H, W) in [0, 1]:
 
 * MSE  — mean squared error over all pixels, channels and images (one number for the whole set);
 * PSNR — ``10 · log10(1 / MSE)`` in dB (``inf`` for identical sets);
@@ -13,7 +13,7 @@ gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1)``: 
 filters with reflect padding and then crops a border of (11 - 1) / 2 = 5 pixels before averaging,
 which leaves exactly the positions of pytorch-msssim's 'valid' convolution, so the two average the
 same SSIM map. Metrics are computed in float64 with a float64 window
-(:func:`compensation.losses.gaussian_window`) and agree with scikit-image to about 1e-15;
+(:func:`gaussian_window`) and agree with scikit-image to about 1e-15;
 pytorch-msssim's default float32 window alone would leave a difference of about 1e-6.
 
 Unlike the official code, nothing is dropped when N is not a multiple of the batch size:
@@ -25,10 +25,74 @@ from __future__ import annotations
 
 import math
 
+import pytorch_msssim
 import torch
 from torch import Tensor
 
-from compensation import losses
+
+WIN_SIZE = 11
+"""Side of the Gaussian SSIM window (pixels)."""
+WIN_SIGMA = 1.5
+"""Standard deviation of the Gaussian SSIM window (pixels)."""
+
+
+def gaussian_window(size: int = WIN_SIZE, sigma: float = WIN_SIGMA) -> Tensor:
+    """Normalised 1-D Gaussian SSIM window, float64, shaped (1, 1, 1, size) for pytorch-msssim.
+
+    Built in float64 because pytorch-msssim's own window is computed and normalised in float32,
+    which moves float64 SSIM values by about 1e-6 from scikit-image's; pytorch-msssim casts the
+    window to the images' dtype.
+
+    Examples
+    --------
+    >>> w = gaussian_window()
+    >>> w.shape, round(w.sum().item(), 12)
+    (torch.Size([1, 1, 1, 11]), 1.0)
+    """
+    x = torch.arange(size, dtype=torch.float64) - size // 2
+    g = torch.exp(-x**2 / (2 * sigma**2))
+    return (g / g.sum()).reshape(1, 1, 1, size)
+
+
+_WINDOW = gaussian_window()
+
+
+def structural_similarity(pred: Tensor, target: Tensor, per_image: bool = False) -> Tensor:
+    """Structural similarity (1 for identical images), mean over RGB channels and images.
+
+    pytorch-msssim's SSIM with an 11×11 Gaussian window (:func:`gaussian_window`, σ = 1.5
+    pixels), data range 1, K = (0.01, 0.03), averaged over the valid (unpadded) window positions
+    of each channel; differentiable (the SSIM losses build on it).
+
+    Parameters
+    ----------
+    pred, target : Tensor
+        (N, 3, H, W) images in [0, 1], H and W at least 11 pixels.
+    per_image : bool
+        Return the (N,) SSIM of each image (mean over its channels) instead of the batch mean.
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ or an image is smaller than the 11×11 window (pytorch-msssim would
+        silently skip the smoothing along that axis).
+
+    Examples
+    --------
+    >>> x = torch.rand(2, 3, 16, 16, generator=torch.Generator().manual_seed(0))
+    >>> round(structural_similarity(x, x).item(), 6)
+    1.0
+    >>> structural_similarity(x, x, per_image=True).shape
+    torch.Size([2])
+    """
+    if pred.shape != target.shape:
+        raise ValueError(f"ssim: pred and target shapes differ: {tuple(pred.shape)} vs "
+                         f"{tuple(target.shape)}")
+    if pred.ndim != 4 or min(pred.shape[2:]) < WIN_SIZE:
+        raise ValueError(f"ssim: expected (N, C, H, W) images with H and W at least {WIN_SIZE} "
+                         f"pixels (the SSIM window), got shape {tuple(pred.shape)}")
+    win = _WINDOW.repeat(pred.shape[1], 1, 1, 1)  # one window per channel (grouped convolution)
+    return pytorch_msssim.ssim(pred, target, data_range=1.0, size_average=not per_image, win=win)
 
 
 def _check_pair(pred: Tensor, target: Tensor) -> None:
@@ -113,7 +177,7 @@ def ssim_per_image(pred: Tensor, target: Tensor) -> Tensor:
     tensor([1., 1.], dtype=torch.float64)
     """
     _check_pair(pred, target)
-    return losses.ssim(pred.double(), target.double(), per_image=True)
+    return structural_similarity(pred.double(), target.double(), per_image=True)
 
 
 def ssim(pred: Tensor, target: Tensor) -> float:

@@ -53,10 +53,10 @@ worker holds one (n + 4)² system at a time.
 from __future__ import annotations
 
 import multiprocessing
-import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -67,12 +67,13 @@ from scipy.spatial.distance import cdist
 from tqdm import tqdm
 
 from compensation.data import N_PLAIN, PairSet
-from compensation.methods import Method, load_arrays, register, resolve_device
+from compensation.methods.base import Method, Options, load_arrays, resolve_device
+from sim.cores import usable_cores
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
     from compensation.data import SetupData
-    from compensation.train import TrainConfig
+    from compensation.training.config import TrainConfig
 
 SMOOTHING = 1e-2
 """Default smoothing λ of ``tps`` (plain colours), added to the kernel diagonal.
@@ -183,11 +184,6 @@ def _fit_task(task: tuple[np.ndarray, np.ndarray, float]) -> tuple[np.ndarray, f
     return coeffs.astype(np.float32), residual, degenerate
 
 
-def default_workers() -> int:
-    """Worker processes for the fit: the CPU cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
 def fit_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOOTHING,
                 workers: int | None = None, progress: bool = False,
                 desc: str = "fit tps") -> tuple[np.ndarray, float, int]:
@@ -204,7 +200,7 @@ def fit_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOO
     smoothing : float
         λ ≥ 0 added to the kernel diagonal.
     workers : int or None
-        Worker processes; None uses :func:`default_workers`.
+        Worker processes; None uses one per usable core.
     progress : bool
         Show a progress bar over pixels.
     desc : str
@@ -232,7 +228,7 @@ def fit_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOO
     count, n, _ = centres.shape
     chunk = max(1, _TASK_SIZE // (n + 4) ** 2)
     tasks = ((centres[s:s + chunk], values[s:s + chunk], smoothing) for s in range(0, count, chunk))
-    workers = default_workers() if workers is None else workers
+    workers = usable_cores() if workers is None else workers
     coeffs = np.empty((count, n + 4, 3), np.float32)
     residual, degenerate, done = 0.0, 0, 0
     with tqdm(total=count, desc=desc, unit="px", disable=not progress) as bar:
@@ -284,7 +280,36 @@ def _pixel_images(values: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     return values.reshape(h, w, -1, 3).permute(2, 3, 0, 1)
 
 
-@register
+@dataclass(frozen=True)
+class TPSOptions(Options):
+    """Options of ``tps`` (splines on the 125 plain colours)."""
+
+    smoothing: float = SMOOTHING
+    """λ >= 0 added to the kernel diagonal (see :data:`SMOOTHING` for how 1e-2 was chosen)."""
+    workers: int | None = None
+    """Worker processes for the fit (>= 1); None: one per usable CPU core. Does not change results."""
+
+    def check(self) -> None:
+        self._require("smoothing", self.smoothing >= 0, "a number >= 0")
+        self._positive_ints("workers")
+
+
+@dataclass(frozen=True)
+class TPSTexturedOptions(TPSOptions):
+    """Options of ``tps-textured`` (splines on the textured training pairs)."""
+
+    smoothing: float = SMOOTHING_TEXTURED
+    """λ >= 0 added to the kernel diagonal (see :data:`SMOOTHING_TEXTURED`)."""
+    max_samples: int = MAX_SAMPLES
+    """Most sample pairs per pixel (>= 4; the paper's 500 training pairs); more pairs are
+    subsampled at random (seeded), the same for every pixel."""
+
+    def check(self) -> None:
+        super().check()
+        self._require("max_samples", isinstance(self.max_samples, int) and self.max_samples >= 4,
+                      "an integer >= 4")
+
+
 class TPSMethod(Method):
     """Per-pixel RGB thin-plate splines fitted on the 125 plain-colour pairs (``data.ref``).
 
@@ -292,20 +317,14 @@ class TPSMethod(Method):
     ----------
     device : str
         Torch device for prediction (``"auto"``: CUDA if available); ``fit`` uses the config's.
-    smoothing : float
-        λ ≥ 0 added to the kernel diagonal (see the module docstring).
-    workers : int or None
-        Worker processes for the fit; None: one per available CPU core.
     """
 
     name = "tps"
+    options = TPSOptions
 
-    def __init__(self, device: str = "auto", smoothing: float = SMOOTHING, workers: int | None = None):
-        if not smoothing >= 0:
-            raise ProcamError(f"{self.name}: smoothing = {smoothing!r}: expected a number >= 0")
+    def __init__(self, device: str = "auto"):
         self.device = resolve_device(device)
-        self.smoothing = float(smoothing)
-        self.workers = workers
+        self.smoothing: float | None = None
         self.size: tuple[int, int] | None = None
         self.centres: torch.Tensor | None = None
         self.coeffs: torch.Tensor | None = None
@@ -326,10 +345,11 @@ class TPSMethod(Method):
         """
         pairs = self.training_pairs(data, cfg)
         self.device = resolve_device(cfg.device)
+        self.smoothing = float(cfg.options.smoothing)
         start = time.perf_counter()
         centres = pixel_samples(pairs.captures)
         coeffs, residual, degenerate = fit_splines(centres, pixel_samples(pairs.frames), self.smoothing,
-                                                   self.workers, progress, f"fit {self.name}")
+                                                   cfg.options.workers, progress, f"fit {self.name}")
         seconds = time.perf_counter() - start
         self._set_state(tuple(pairs.captures.shape[-2:]), torch.from_numpy(centres),
                         torch.from_numpy(coeffs))
@@ -386,13 +406,13 @@ class TPSMethod(Method):
             raise ProcamError(f"{path}: inconsistent shapes: centres {centres.shape}, coeffs "
                               f"{coeffs.shape}, size {size.tolist()}; expected (H·W, n, 3), "
                               "(H·W, n + 4, 3), [H, W]")
-        method = cls(device, smoothing=float(state["smoothing"]))
+        method = cls(device)
+        method.smoothing = float(state["smoothing"])
         method._set_state((int(size[0]), int(size[1])), torch.from_numpy(centres),
                           torch.from_numpy(coeffs))
         return method
 
 
-@register
 class TPSTexturedMethod(TPSMethod):
     """Per-pixel RGB thin-plate splines fitted on the textured training pairs (``data.train``).
 
@@ -408,28 +428,16 @@ class TPSTexturedMethod(TPSMethod):
     for every pixel. On simulated pixels (see :data:`SMOOTHING`), 500 instead of 250 samples gained
     0.3 dB PSNR with sensor noise and 1.5 dB without.
 
-    Parameters
-    ----------
-    device, smoothing, workers
-        As for :class:`TPSMethod`.
-    max_samples : int
-        Most sample pairs per pixel (≥ 4).
     """
 
     name = "tps-textured"
-
-    def __init__(self, device: str = "auto", smoothing: float = SMOOTHING_TEXTURED,
-                 workers: int | None = None, max_samples: int = MAX_SAMPLES):
-        super().__init__(device, smoothing, workers)
-        if not (isinstance(max_samples, int) and max_samples >= 4):
-            raise ProcamError(f"{self.name}: max_samples = {max_samples!r}: expected an integer >= 4")
-        self.max_samples = max_samples
+    options = TPSTexturedOptions
 
     def training_pairs(self, data: SetupData, cfg: TrainConfig) -> PairSet:
         """All training pairs, or a seeded random subset of ``max_samples`` of them (sorted)."""
-        n = len(data.train)
-        if n <= self.max_samples:
+        n, most = len(data.train), cfg.options.max_samples
+        if n <= most:
             return data.train
         order = torch.randperm(n, generator=torch.Generator().manual_seed(cfg.seed))
-        keep = order[:self.max_samples].sort().values
+        keep = order[:most].sort().values
         return PairSet(data.train.captures[keep], data.train.frames[keep])

@@ -1,0 +1,233 @@
+"""The surrogate benchmark of the CompenNet paper over a suite of simulated setups.
+
+suite → (render what is missing) → train each method × training size × setup → evaluate →
+Table 1 (methods × training-set sizes, averaged over setups, with the uncompensated row),
+Table 2 (pre-trained vs He-initialised CompenNet: 32 pairs, 500 iterations, batch 32),
+Table 3 (training losses ℓ1, ℓ2, SSIM, ℓ1+SSIM), as Markdown and CSV, plus per-setup rows.
+With ``closed_loop`` every run is also scored by projecting its compensation back through the
+setup, next to the iterative-refinement oracle.
+"""
+from __future__ import annotations
+
+import time
+import traceback
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from compensation.data import load_setup_data
+from compensation.evaluation.metrics import evaluate
+from compensation.evaluation.tables import LOSSES, TABLE2, write_tables
+from compensation.methods import get_method
+from compensation.training.config import COMMON, PROFILES, applicable, make_config
+from compensation.training.runs import load_run, train_run
+from sim.dataset import FrameSpec, write_setup
+from sim.errors import ProcamError
+from sim.io import read_json, to_uint8, write_json, write_png
+
+N_MASK_FIGURE = 4
+"""Test images per setup in ``reachable/<setup>.png``."""
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """What ``procam bench`` runs."""
+
+    profile: str = "quick"
+    """Training profile (``quick`` or ``paper``); also gives the canonical size and test count."""
+    methods: tuple[str, ...] = ("compennet", "compennet-nosurf")
+    """Methods of Table 1 (registry names)."""
+    sizes: tuple[int, ...] = (125, 250, 500)
+    """Training-set sizes of Table 1."""
+    tables: tuple[str, ...] = ("1", "2", "3")
+    """Which tables to produce ("1", "2", "3")."""
+    size: int | None = None
+    """Canonical size override (pixels, square); None takes the profile's."""
+    n_test: int | None = None
+    """Test pairs override; None takes the profile's."""
+    overrides: dict = field(default_factory=dict)
+    """Training options applied to every run whose method takes them (common options such as
+    ``seed`` or ``device`` to all runs, e.g. ``iters`` to the network methods)."""
+    closed_loop: bool = False
+    """Also score every run in closed loop and add the iterative-refinement oracle."""
+
+    def __post_init__(self):
+        for name in self.methods:
+            get_method(name)
+        if unknown := sorted(set(self.tables) - {"1", "2", "3"}):
+            raise ProcamError(f"tables {', '.join(unknown)}: expected some of 1, 2, 3")
+        used = set(self.methods) | ({"compennet"} if {"2", "3"} & set(self.tables) else set())
+        for key in self.overrides:
+            if key not in COMMON and not any(key in get_method(m).options.names() for m in used):
+                raise ProcamError(f"option {key!r} is not used by any method of this bench "
+                                  f"({', '.join(sorted(used))})")
+
+    @property
+    def canonical(self) -> int:
+        """Canonical square size in pixels."""
+        return self.size or PROFILES[self.profile]["size"]
+
+    @property
+    def tests(self) -> int:
+        """Test pairs per setup."""
+        return self.n_test or PROFILES[self.profile]["n_test"]
+
+
+@dataclass(frozen=True)
+class Job:
+    """One training run of the benchmark."""
+
+    table: str
+    setup: str
+    method: str
+    n_train: int
+    loss: str | None = None
+    init: str | None = None
+    extra: tuple = ()
+
+    @property
+    def run_name(self) -> str:
+        tag = f"{self.method}-n{self.n_train}" + (f"-{self.loss}" if self.loss else "")
+        tag += "-pretrained" if self.init else ""
+        return tag + "".join(f"-{k}{v}" for k, v in self.extra)
+
+
+def _jobs(cfg: BenchConfig, setups: list[str], pretrain_run: Path | None) -> list[Job]:
+    jobs = []
+    if "1" in cfg.tables:
+        jobs += [Job("1", s, m, n) for s in setups for m in cfg.methods for n in cfg.sizes]
+    if "2" in cfg.tables:
+        extra = tuple((k, v) for k, v in TABLE2.items() if k != "n_train")
+        for s in setups:
+            jobs.append(Job("2", s, "compennet", TABLE2["n_train"], extra=extra))
+            if pretrain_run is not None:
+                jobs.append(Job("2", s, "compennet", TABLE2["n_train"], init=str(pretrain_run),
+                                extra=extra))
+    if "3" in cfg.tables:
+        jobs += [Job("3", s, "compennet", max(cfg.sizes), loss) for s in setups for loss in LOSSES]
+    return jobs
+
+
+def _train_config(cfg: BenchConfig, method: str, n_train: int, **job_values):
+    """The run configuration of one job: the user's options that ``method`` takes, then the job's
+    own values (the user's word wins over a table's iterations and batch)."""
+    values = applicable(method, cfg.overrides)
+    values.update({k: v for k, v in job_values.items() if k not in cfg.overrides})
+    return make_config(cfg.profile, method, **{**values, "n_train": n_train, "n_test": cfg.tests})
+
+
+def _reusable(run_dir: Path, train_cfg) -> dict | None:
+    """The metrics of a finished run made with exactly ``train_cfg`` (device aside), else None."""
+    if not (run_dir / "metrics.json").exists():
+        return None
+    try:
+        done = read_json(run_dir / "config.json", "run configuration")["train"]
+    except (ProcamError, KeyError, TypeError):
+        return None
+    wanted = train_cfg.to_dict()
+    same = all(done.get(k) == v for k, v in wanted.items() if k != "device")
+    return read_json(run_dir / "metrics.json", "run metrics") if same else None
+
+
+def run_bench(suite: list, out: Path, cfg: BenchConfig, data_root: Path | None = None,
+              white=None, progress: bool = True) -> dict[str, Path]:
+    """Run the benchmark and write its tables.
+
+    Resumable: a run whose ``metrics.json`` exists and whose configuration equals the job's is
+    reused; any other run folder is trained again. A failing run is recorded in
+    ``failures.json`` and does not lose the others.
+
+    Parameters
+    ----------
+    suite : list of Setup
+        The setups (e.g. ``load_suite("scenes/suite.toml")``).
+    out : Path
+        Output folder: ``runs/``, ``table{1,2,3}.{md,csv}``, ``per_setup.csv``, ``failures.json``.
+    cfg : BenchConfig
+        What to run.
+    data_root : Path, optional
+        Where datasets are rendered (default ``out/data``); existing ones are reused.
+    white : Setup, optional
+        The white-surface setup used for pre-training (Table 2).
+
+    Returns
+    -------
+    dict
+        Paths of the files written, by name.
+    """
+    out = Path(out)
+    data_root = Path(data_root or out / "data")
+    spec = FrameSpec(max(max(cfg.sizes), TABLE2["n_train"]), cfg.tests, (cfg.canonical,) * 2)
+    setups = [s.name for s in suite]
+    for s in suite:
+        write_setup(data_root, s, spec, progress=progress)
+    pretrain = None
+    if "2" in cfg.tables and white is not None:
+        write_setup(data_root, white, spec, progress=progress)
+        pretrain = out / "runs" / white.name / "compennet-pretrain"
+        pre_cfg = _train_config(cfg, "compennet", max(cfg.sizes))
+        if _reusable(pretrain, pre_cfg) is None:
+            train_run(data_root / white.name, pre_cfg, pretrain, progress, True)
+
+    rows, failures = [], []
+    for job in _jobs(cfg, setups, pretrain):
+        run_dir = out / "runs" / job.setup / job.run_name
+        try:
+            job_values = dict(job.extra, loss=job.loss,
+                              init=str(Path(job.init).resolve()) if job.init else None)
+            train_cfg = _train_config(cfg, job.method, job.n_train, **job_values)
+            metrics = _reusable(run_dir, train_cfg)
+            if metrics is None:
+                metrics = train_run(data_root / job.setup, train_cfg, run_dir, progress, overwrite=True)
+            if cfg.closed_loop and "psnr_reachable" not in metrics.get("closed_loop", {}):
+                metrics = _add_closed_loop(run_dir, data_root / job.setup, cfg.tests)
+        except Exception as exc:  # one failure must not lose the others' results
+            failures.append({**asdict(job), "error": f"{type(exc).__name__}: {exc}",
+                             "traceback": traceback.format_exc(limit=3)})
+            continue
+        rows.append({**asdict(job), "extra": dict(job.extra), "run": str(run_dir), **metrics})
+
+    masks = out / "reachable" if cfg.closed_loop else None
+    uncompensated, oracle = {}, {}
+    for s in setups:
+        uncompensated[s], oracle_rows = _setup_baselines(data_root / s, cfg.tests, masks)
+        if oracle_rows is not None:
+            oracle[s] = oracle_rows
+    return write_tables(out, cfg, rows, failures, uncompensated, oracle)
+
+
+def _setup_baselines(setup_dir: Path, n_test: int, masks: Path | None) -> tuple[dict, list[dict] | None]:
+    """The method-free rows of one setup: scores of the test captures x̃ against x, and the oracle.
+
+    With a ``masks`` folder (closed loop), the uncompensated scores also get the closed-loop scores
+    of y projected as is (its captures are the test captures), ``masks/<setup>.png`` shows the
+    first test images with their physically unreachable pixels tinted magenta, and the iterative
+    refinement rows are returned (``None`` otherwise).
+    """
+    data = load_setup_data(setup_dir, n_train=1, n_test=n_test)
+    captures, y = data.test.captures, data.test.frames
+    scores = evaluate(captures, y)
+    if masks is None:
+        return scores, None
+    from compensation.evaluation.closed_loop import (closed_loop_scores, iterative_refinement,
+                                                     reachable_mask, reachable_overlay, simulator_for)
+
+    mask = reachable_mask(data, y)
+    scores["closed_loop"] = closed_loop_scores(captures, y, mask)
+    k = min(N_MASK_FIGURE, y.shape[0])
+    strip = reachable_overlay(y[:k], mask[:k]).permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
+    write_png(masks / f"{setup_dir.name}.png", to_uint8(strip.numpy()))
+    return scores, iterative_refinement(data, simulator_for(setup_dir))
+
+
+def _add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:
+    from compensation.evaluation.closed_loop import closed_loop, simulator_for
+
+    method, _ = load_run(run_dir)
+    data = load_setup_data(setup_dir, n_train=1, n_test=n_test)
+    t0 = time.perf_counter()
+    scores = closed_loop(method, data, simulator_for(setup_dir))
+    scores["seconds"] = round(time.perf_counter() - t0, 3)
+    metrics = read_json(run_dir / "metrics.json", "run metrics")
+    metrics["closed_loop"] = scores
+    write_json(run_dir / "metrics.json", metrics)
+    return metrics

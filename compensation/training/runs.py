@@ -1,0 +1,260 @@
+"""Run directories: train a method on one setup, record everything, load it back, compensate.
+
+A run directory holds::
+
+    config.json    the fully resolved TrainConfig (every option the method used), the dataset path,
+                   the image size (width, height), versions, device
+    loss.csv       iteration, loss, learning rate
+    loss.png       the loss curve
+    model.pt       network weights: a plain state dict (loaded with weights_only=True), or the
+                   method's own state file (``tps.npz``, ``nayar.npz``)
+    metrics.json   test PSNR / RMSE / SSIM of π†(x̃) vs x on all test pairs, and uncompensated
+    examples.png   rows of s̃, x̃, π†(x̃), x for a few test pairs
+"""
+from __future__ import annotations
+
+import csv
+import io
+import shutil
+import tempfile
+from dataclasses import replace
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from compensation.data import SURFACE_NAME, load_setup_data, to_tensor
+from compensation.evaluation.metrics import evaluate
+from compensation.methods import get_method
+from compensation.methods.base import Method, resolve_device
+from compensation.training.config import TrainConfig
+from sim.errors import ProcamError
+from sim.io import atomic_write, read_json, read_png, to_uint8, write_json, write_png
+
+
+def _package_version() -> str:
+    try:
+        return version("procam")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _device_name(device: torch.device) -> str:
+    if device.type == "cuda":
+        return f"{device} ({torch.cuda.get_device_name(device)})"
+    return f"cpu ({torch.get_num_threads()} threads)"
+
+
+def _write_loss(run_dir: Path, curve: list[tuple[int, float, float]], title: str) -> None:
+    """``loss.csv`` (iteration, loss, lr) and ``loss.png`` (Agg canvas, no pyplot state)."""
+    text = io.StringIO(newline="")
+    writer = csv.writer(text)
+    writer.writerow(["iteration", "loss", "lr"])
+    writer.writerows((i, f"{loss:.6g}", f"{lr:.6g}") for i, loss, lr in curve)
+    atomic_write(run_dir / "loss.csv", text.getvalue())
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6, 4), dpi=100)
+    ax = fig.add_subplot()
+    its, values = [c[0] for c in curve], [c[1] for c in curve]
+    ax.plot(its, values, lw=0.8)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("training loss")
+    ax.set_yscale("log")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(run_dir / "loss.png")
+
+
+def example_grid(surface: torch.Tensor, captures: torch.Tensor, predicted: torch.Tensor,
+                 frames: torch.Tensor, rows: int = 4, gap: int = 2, min_size: int = 128) -> np.ndarray:
+    """Image grid, one row per test pair: s̃ | x̃ | π†(x̃) | x, separated by white gaps.
+
+    Images smaller than ``min_size`` pixels are enlarged by an integer factor (nearest neighbour).
+
+    Returns
+    -------
+    numpy.ndarray
+        uint8 (H', W', 3).
+    """
+    n = min(rows, captures.shape[0])
+    scale = max(1, min_size // min(captures.shape[-2:]))
+    surface, captures, predicted, frames = (
+        t[:n].repeat_interleave(scale, -2).repeat_interleave(scale, -1)
+        for t in (surface, captures, predicted, frames))
+    h, w = captures.shape[-2:]
+    grid = np.ones((n * (h + gap) - gap, 4 * (w + gap) - gap, 3), np.float32)
+    for r in range(n):
+        for c, img in enumerate((surface[0], captures[r], predicted[r], frames[r])):
+            grid[r * (h + gap):r * (h + gap) + h, c * (w + gap):c * (w + gap) + w] = \
+                img.permute(1, 2, 0).numpy()
+    return to_uint8(grid)
+
+
+def _check_out_dir(out_dir: Path, overwrite: bool) -> None:
+    if out_dir.exists() and not overwrite:
+        what = "a finished run" if (out_dir / "metrics.json").exists() else "a folder that is not a run"
+        raise ProcamError(f"{out_dir}: {what} already exists; choose another output or pass overwrite")
+    if out_dir.exists() and not (out_dir / "metrics.json").exists():
+        raise ProcamError(f"{out_dir}: exists and is not a run directory (no metrics.json); "
+                          "refusing to replace it")
+
+
+def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, progress: bool = True,
+              overwrite: bool = False) -> dict:
+    """Train ``cfg.method`` on a setup, evaluate on all its test pairs and write a run directory.
+
+    The run is written into ``<out_dir>.tmp-XXXX`` and renamed into place at the end, so an
+    interrupted run never looks finished.
+
+    Parameters
+    ----------
+    setup_dir : path-like
+        ``DATA_ROOT/<setup>`` (a finished setup).
+    cfg : TrainConfig
+        Training configuration.
+    out_dir : path-like
+        Run directory to create.
+    progress : bool
+        Show a progress bar with the loss and samples per second.
+    overwrite : bool
+        Replace an existing finished run at ``out_dir``.
+
+    Returns
+    -------
+    dict
+        The contents of ``metrics.json``: ``method``, ``setup``, ``psnr`` (dB), ``rmse``,
+        ``ssim`` of π†(x̃) vs x, ``uncompensated`` (the same for x̃ vs x), ``train_seconds``,
+        ``samples_per_second``, ``final_loss``, ``n_train``, ``n_test``, ``iters``, ``batch``.
+
+    Raises
+    ------
+    ProcamError
+        If the output exists (and ``overwrite`` is not set, or it is not a run), the dataset is
+        incomplete (DatasetError), or ``cfg.init`` does not fit the method.
+    """
+    setup_dir, out_dir = Path(setup_dir), Path(out_dir)
+    _check_out_dir(out_dir, overwrite)
+    device = resolve_device(cfg.device)
+    data = load_setup_data(setup_dir, cfg.n_train, cfg.n_test)
+    options = cfg.options
+    if getattr(options, "init", None):
+        options = replace(options, init=str(Path(options.init).resolve()))
+    resolved = replace(cfg, n_train=len(data.train), n_test=len(data.test), device=str(device),
+                       options=options)
+    method = get_method(cfg.method)()
+    stats = method.fit(data, resolved, progress)
+    predicted = method.predict(data.test.captures, data.surface, batch_size=cfg.eval_batch)
+    scores = evaluate(predicted, data.test.frames, batch_size=cfg.eval_batch)
+    plain = evaluate(data.test.captures, data.test.frames, batch_size=cfg.eval_batch)
+    metrics = {"method": cfg.method, "setup": data.name,
+               **{k: float(scores[k]) for k in ("psnr", "rmse", "ssim")},
+               "uncompensated": {k: float(plain[k]) for k in ("psnr", "rmse", "ssim")},
+               "train_seconds": round(stats["seconds"], 3),
+               "samples_per_second": round(stats["samples_per_second"], 3),
+               "final_loss": stats["final_loss"], "n_train": len(data.train),
+               "n_test": len(data.test), "iters": getattr(cfg.options, "iters", 1),
+               "batch": stats["batch"]}
+    height, width = data.size
+    config = {"train": resolved.to_dict(), "dataset": str(setup_dir.resolve()), "setup": data.name,
+              "image_size": {"width": width, "height": height}, "procam_version": _package_version(),
+              "torch_version": torch.__version__, "device": _device_name(device)}
+
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f"{out_dir.name}.tmp-", dir=out_dir.parent))
+    try:
+        write_json(tmp / "config.json", config)
+        _write_loss(tmp, stats["loss_curve"], f"{cfg.method} on {data.name}")
+        method.save(tmp)
+        write_png(tmp / "examples.png", example_grid(data.surface, data.test.captures, predicted,
+                                                     data.test.frames))
+        write_json(tmp / "metrics.json", metrics)
+        if out_dir.exists():
+            _check_out_dir(out_dir, overwrite)
+            old = Path(tempfile.mkdtemp(prefix=f"{out_dir.name}.old-", dir=out_dir.parent))
+            out_dir.rename(old / "run")
+            tmp.rename(out_dir)
+            shutil.rmtree(old)
+        else:
+            tmp.rename(out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return metrics
+
+
+def load_run(run_dir: str | Path, device: str = "auto") -> tuple[Method, dict]:
+    """The fitted method of a run directory and its ``config.json``.
+
+    Raises
+    ------
+    ProcamError
+        If the folder, its config or its checkpoint is missing or unreadable, or the method is
+        unknown.
+    """
+    run_dir = Path(run_dir)
+    config_file = run_dir / "config.json"
+    if not config_file.exists():
+        raise ProcamError(f"{run_dir}: not a run directory (no config.json)")
+    config = read_json(config_file, "run configuration")
+    try:
+        name = config["train"]["method"]
+        cls = get_method(name)
+        run_size(config)
+    except (KeyError, TypeError) as exc:
+        raise ProcamError(f"{config_file}: missing or malformed key {exc}") from None
+    except ProcamError as exc:
+        raise ProcamError(f"{config_file}: {exc}") from None
+    return cls.load(run_dir, device), config
+
+
+def run_size(config: dict) -> tuple[int, int]:
+    """(width, height) in pixels of the images a run was trained on, from its ``config.json``."""
+    size = config["image_size"]
+    return int(size["width"]), int(size["height"])
+
+
+def compensate(run_dir: str | Path, desired: torch.Tensor, surface: torch.Tensor | None = None,
+               device: str = "auto") -> torch.Tensor:
+    """Projector frames x* = π†(y) that make the setup of a trained run show ``desired`` y.
+
+    Parameters
+    ----------
+    run_dir : path-like
+        A run directory written by :func:`train_run`.
+    desired : torch.Tensor
+        Desired appearance in the canonical projector view, float32 (N, 3, H, W) in [0, 1].
+    surface : torch.Tensor, optional
+        Surface image s̃ (1, 3, H, W); defaults to the s̃ of the dataset the run was trained on.
+    device : str
+        Torch device for the network.
+
+    Returns
+    -------
+    torch.Tensor
+        float32 (N, 3, H, W) in [0, 1], on the CPU.
+
+    Raises
+    ------
+    ProcamError
+        If the run is unreadable, the default surface image is gone, or the shapes do not fit.
+    """
+    method, config = load_run(run_dir, device)
+    if surface is None:
+        path = Path(config["dataset"]) / "cam" / "warp" / "ref" / SURFACE_NAME
+        if not path.exists():
+            raise ProcamError(f"{path}: the surface image of the dataset run {run_dir} was trained "
+                              "on is gone; pass a surface image")
+        surface = to_tensor(read_png(path)[None])
+    if desired.ndim != 4 or desired.shape[1] != 3:
+        raise ProcamError(f"desired images: expected shape (N, 3, H, W), got {tuple(desired.shape)}")
+    if surface.ndim != 4 or surface.shape[:2] != (1, 3) or surface.shape[-2:] != desired.shape[-2:]:
+        raise ProcamError(f"surface image: expected shape (1, 3, {desired.shape[2]}, {desired.shape[3]}) "
+                          f"to match the desired images, got {tuple(surface.shape)}")
+    if desired.shape[2] % 4 or desired.shape[3] % 4:
+        raise ProcamError(f"desired images: {desired.shape[3]}x{desired.shape[2]} pixels; width and "
+                          "height must be divisible by 4")
+    return method.predict(desired.float(), surface.float(),
+                          batch_size=config["train"].get("eval_batch", 64))
