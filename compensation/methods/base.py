@@ -191,11 +191,14 @@ class Method(abc.ABC):
     """The method's options dataclass."""
 
     @abc.abstractmethod
-    def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True) -> dict:
+    def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
+            checkpoint: Path | None = None) -> dict:
         """Fit on ``data.train`` (and ``data.ref`` / ``data.surface`` as the method needs).
 
         ``cfg.options`` is an instance of the method's :attr:`options`; ``cfg.seed`` and
-        ``cfg.device`` are common to every method.
+        ``cfg.device`` are common to every method. An iterative method resumes from and saves its
+        training state to ``checkpoint`` (see :func:`compensation.training.loop.train_loop`);
+        a closed-form fit of seconds may ignore it.
 
         Returns
         -------

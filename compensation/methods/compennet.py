@@ -288,14 +288,15 @@ class CompenNetMethod(Method):
         self.device = resolve_device(device)
         self.model: CompenNet | None = None
 
-    def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True) -> dict:
+    def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
+            checkpoint: Path | None = None) -> dict:
         self.device = resolve_device(cfg.device)
         torch.manual_seed(cfg.seed)  # He init of the new network is seeded
         model = CompenNet(surface=self.surface)
         if cfg.options.init is not None:
             load_weights(model, Path(cfg.options.init) / CHECKPOINT, self.name)
         self.model = model.to(self.device)
-        return fit_network(self.model, data, cfg, self.surface, progress)
+        return fit_network(self.model, data, cfg, self.surface, progress, checkpoint)
 
     @torch.no_grad()
     def predict(self, captures: torch.Tensor, surface: torch.Tensor, batch_size: int = 64) -> torch.Tensor:

@@ -234,7 +234,8 @@ class NayarMethod(Method):
         self.offset: torch.Tensor | None = None
         self._inverse: torch.Tensor | None = None
 
-    def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True) -> dict:
+    def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
+            checkpoint: Path | None = None) -> dict:
         """Estimate γ, then every pixel's V and o.
 
         Returns

@@ -331,7 +331,8 @@ class Pix2PixMethod(Method):
         self.device = resolve_device(device)
         self.model: Pix2Pix | None = None
 
-    def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True) -> dict:
+    def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
+            checkpoint: Path | None = None) -> dict:
         """Train generator and discriminator on ``data.train`` (the official update order).
 
         Each iteration: G(x̃); one discriminator step on ½·(BCE(D(x̃, G(x̃)), 0) + BCE(D(x̃, x), 1));
@@ -387,8 +388,10 @@ class Pix2PixMethod(Method):
             return torch.stack([loss_l1.detach() / 2, loss_gan.detach(), loss_d.detach()])
 
         model.train()
+        stateful = {"model": model, "optimizer_g": opt_g, "optimizer_d": opt_d}
         result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
-                            ("l1", "G GAN", "D"), f"train {self.name} on {data.name}", progress)
+                            ("l1", "G GAN", "D"), f"train {self.name} on {data.name}", progress,
+                            stateful, checkpoint)
         disc.requires_grad_(True)
         rows = result.values
         return {"seconds": result.seconds, "samples_per_second": result.samples_per_second,

@@ -333,7 +333,8 @@ class TPSMethod(Method):
         """The sample pairs of every pixel's spline: the 125 plain colours (not the gray frame)."""
         return PairSet(data.ref.captures[:N_PLAIN], data.ref.frames[:N_PLAIN])
 
-    def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True) -> dict:
+    def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
+            checkpoint: Path | None = None) -> dict:
         """Fit every pixel's spline on :meth:`training_pairs`.
 
         Returns

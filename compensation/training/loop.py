@@ -2,15 +2,21 @@
 
 A method supplies a *step*: given the indices of this iteration's batch it updates its networks
 and returns the iteration's loss values (a 1-D tensor, the first being the one reported). The loop
-draws the batches (:func:`batch_indices`), records the values, stops with a clear error when one
-becomes NaN or infinite, shows a progress bar and times the whole fit.
+draws the batches (:class:`BatchSampler`), records the values, stops with a clear error when one
+becomes NaN or infinite, shows a progress bar, times the whole fit, and checkpoints so that a
+killed or interrupted fit resumes bit for bit.
 """
 from __future__ import annotations
 
+import io
 import math
+import pickle
+import signal
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,6 +25,7 @@ from tqdm import tqdm
 
 from compensation.evaluation.losses import get_loss
 from sim.errors import ProcamError
+from sim.io import atomic_write
 
 if TYPE_CHECKING:
     from compensation.data import SetupData
@@ -26,10 +33,12 @@ if TYPE_CHECKING:
 
 CHECK_EVERY = 10
 """Iterations between divergence checks (each check synchronises with the device)."""
+CHECKPOINT_EVERY = 50
+"""Iterations between training checkpoints (a CompenNet checkpoint is ~13 MB with Adam's moments)."""
 
 
-def batch_indices(n: int, batch: int, generator: torch.Generator) -> Iterator[torch.Tensor]:
-    """Endless batches of distinct indices in [0, n), drawn without replacement.
+class BatchSampler:
+    """Endless batches of distinct indices in [0, n), drawn without replacement; checkpointable.
 
     Each epoch is a seeded permutation; a batch that straddles two epochs takes the rest of the
     old one and fills up with indices of the new one that it does not hold yet, so every index
@@ -41,30 +50,47 @@ def batch_indices(n: int, batch: int, generator: torch.Generator) -> Iterator[to
         Number of samples.
     batch : int
         Batch size, at most ``n``.
-    generator : torch.Generator
-        Seeded generator of the permutations.
-
-    Yields
-    ------
-    torch.Tensor
-        int64 indices, shape (batch,).
+    seed : int
+        Seed of the permutations.
 
     Examples
     --------
-    >>> batches = batch_indices(5, 2, torch.Generator().manual_seed(0))
+    >>> batches = BatchSampler(5, 2, seed=0)
     >>> seen = torch.cat([next(batches) for _ in range(5)])  # two epochs of 5
     >>> sorted(seen[:5].tolist()), sorted(seen[5:].tolist())
     ([0, 1, 2, 3, 4], [0, 1, 2, 3, 4])
+    >>> again = BatchSampler(5, 2, seed=0)
+    >>> again.load_state_dict(batches.state_dict())
+    >>> torch.equal(next(again), next(batches))
+    True
     """
-    pool = torch.randperm(n, generator=generator)
-    while True:
-        if len(pool) >= batch:
-            out, pool = pool[:batch], pool[batch:]
+
+    def __init__(self, n: int, batch: int, seed: int):
+        self.n, self.batch = n, batch
+        self.generator = torch.Generator().manual_seed(seed)
+        self.pool = torch.randperm(n, generator=self.generator)
+
+    def __iter__(self) -> Iterator[torch.Tensor]:
+        return self
+
+    def __next__(self) -> torch.Tensor:
+        """The next batch: int64 indices, shape (batch,)."""
+        if len(self.pool) >= self.batch:
+            out, self.pool = self.pool[:self.batch], self.pool[self.batch:]
         else:
-            perm = torch.randperm(n, generator=generator)
-            fresh = perm[~torch.isin(perm, pool)][:batch - len(pool)]
-            out, pool = torch.cat([pool, fresh]), perm[~torch.isin(perm, fresh)]
-        yield out
+            perm = torch.randperm(self.n, generator=self.generator)
+            fresh = perm[~torch.isin(perm, self.pool)][:self.batch - len(self.pool)]
+            out, self.pool = torch.cat([self.pool, fresh]), perm[~torch.isin(perm, fresh)]
+        return out
+
+    def state_dict(self) -> dict:
+        """The generator state and the rest of the current epoch."""
+        return {"generator": self.generator.get_state(), "pool": self.pool.clone()}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Continue exactly where :meth:`state_dict` was taken."""
+        self.generator.set_state(state["generator"])
+        self.pool = state["pool"].clone()
 
 
 @dataclass(frozen=True)
@@ -86,16 +112,86 @@ class LoopResult:
         return float(np.mean([v[0] for v in self.values[-10:]]))
 
 
+class _Interrupt:
+    """Turns SIGINT/SIGTERM into a flag the loop checks after each step (main thread only)."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self):
+        self.signum: int | None = None
+        self._previous = {}
+
+    def __enter__(self) -> _Interrupt:
+        if threading.current_thread() is threading.main_thread():
+            for sig in self.SIGNALS:
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        self.signum = signum
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+def _save_checkpoint(path: Path, it: int, values: torch.Tensor, sampler: BatchSampler,
+                     stateful: dict, seconds: float) -> None:
+    """Everything needed to continue bit for bit after iteration ``it`` (atomic ``torch.save``)."""
+    state = {"iteration": it, "values": values[:it].cpu(), "sampler": sampler.state_dict(),
+             "rng": torch.get_rng_state(), "seconds": seconds,
+             "states": {k: v.state_dict() for k, v in stateful.items()}}
+    if torch.cuda.is_available():
+        state["cuda_rng"] = torch.cuda.get_rng_state_all()
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    atomic_write(path, buffer.getvalue())
+
+
+def _load_checkpoint(path: Path, values: torch.Tensor, sampler: BatchSampler, stateful: dict) -> tuple[int, float]:
+    """Restore a checkpoint of :func:`_save_checkpoint`; returns (iterations done, seconds spent).
+
+    Raises
+    ------
+    ProcamError
+        If the file cannot be read or does not fit this training (other networks, more
+        iterations than asked for).
+    """
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+        it = int(state["iteration"])
+        if it > values.shape[0] or state["values"].shape[1] != values.shape[1]:
+            raise ValueError(f"it holds {it} iterations of {state['values'].shape[1]} values")
+        values[:it] = state["values"].to(values.device)
+        sampler.load_state_dict(state["sampler"])
+        for k, v in stateful.items():
+            v.load_state_dict(state["states"][k])
+        torch.set_rng_state(state["rng"])
+        if "cuda_rng" in state and torch.cuda.is_available():
+            torch.cuda.set_rng_state_all(state["cuda_rng"])
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError, pickle.UnpicklingError) as exc:
+        raise ProcamError(f"{path}: cannot resume from this training checkpoint ({exc}); delete it "
+                          "to start again") from None
+    return it, float(state["seconds"])
+
+
 def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int, iters: int,
                seed: int, device: torch.device, names: tuple[str, ...], desc: str,
-               progress: bool = True) -> LoopResult:
-    """Run ``iters`` steps on batches of distinct training indices.
+               progress: bool = True, stateful: dict | None = None, checkpoint: Path | None = None,
+               every: int | None = None) -> LoopResult:
+    """Run ``iters`` steps on batches of distinct training indices, resumable.
+
+    With a ``checkpoint`` path, the loop resumes from that file when it exists, saves it every
+    ``every`` iterations and after the last, and on SIGINT/SIGTERM saves it and stops with a
+    :class:`ProcamError`;
+    a resumed run gives bit-identical results to an uninterrupted one on the CPU (the objects in
+    ``stateful``, the batch order, the values and torch's random state are all restored).
 
     Parameters
     ----------
     step : callable
         ``step(indices)`` performs one update on the training pairs ``indices`` (on ``device``)
-        and returns a detached 1-D tensor of ``len(names)`` loss values.
+        and returns a detached 1-D tensor of ``len(names)`` values (the first is the loss).
     n : int
         Number of training pairs.
     batch : int
@@ -112,29 +208,52 @@ def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int,
         Progress-bar label and the subject of a divergence message.
     progress : bool
         Show the progress bar.
+    stateful : dict, optional
+        Objects with ``state_dict``/``load_state_dict`` that the step changes (networks,
+        optimisers, schedulers), by name.
+    checkpoint : Path, optional
+        Training-state file to resume from and save to.
+    every : int, optional
+        Iterations between checkpoints (default :data:`CHECKPOINT_EVERY`).
 
     Raises
     ------
     ProcamError
-        If a value becomes NaN or infinite (checked every :data:`CHECK_EVERY` iterations).
+        If a value becomes NaN or infinite (checked every :data:`CHECK_EVERY` iterations), or the
+        process is asked to stop (the checkpoint is saved first).
     """
+    stateful = stateful or {}
+    every = every or CHECKPOINT_EVERY
     batch = min(batch, n)
-    batches = batch_indices(n, batch, torch.Generator().manual_seed(seed))
+    sampler = BatchSampler(n, batch, seed)
     values = torch.zeros(iters, len(names), dtype=torch.float64, device=device)
-    start = time.perf_counter()
-    with tqdm(total=iters, desc=desc, unit="it", disable=not progress) as bar:
-        for it in range(iters):
-            values[it] = step(next(batches).to(device))
+    done, spent = 0, 0.0
+    if checkpoint is not None and Path(checkpoint).exists():
+        done, spent = _load_checkpoint(Path(checkpoint), values, sampler, stateful)
+    start = time.perf_counter() - spent
+    with tqdm(total=iters, initial=done, desc=desc, unit="it", disable=not progress) as bar, \
+            _Interrupt() as interrupt:
+        for it in range(done, iters):
+            values[it] = step(next(sampler).to(device))
             bar.update()
             if it % CHECK_EVERY == CHECK_EVERY - 1 or it == iters - 1:
                 current = values[it].tolist()
                 if not all(math.isfinite(v) for v in current):
                     shown = ", ".join(f"{k} {v}" for k, v in zip(names, current))
                     raise ProcamError(f"{desc} diverged at iteration {it + 1} ({shown}); try a lower lr")
-                rate = (it + 1) * batch / (time.perf_counter() - start)
+                rate = (it + 1 - done) * batch / max(time.perf_counter() - start - spent, 1e-9)
                 bar.set_postfix({names[0]: f"{current[0]:.4f}", "samples_per_s": f"{rate:.1f}"})
+            if checkpoint is not None and (interrupt.signum is not None or (it + 1) % every == 0
+                                           or it + 1 == iters):
+                _save_checkpoint(Path(checkpoint), it + 1, values, sampler, stateful,
+                                 time.perf_counter() - start)
+            if interrupt.signum is not None:
+                where = f"; training state saved to {checkpoint}, run the same command to resume" \
+                    if checkpoint is not None else ""
+                raise ProcamError(f"{desc} stopped by {signal.Signals(interrupt.signum).name} after "
+                                  f"iteration {it + 1}{where}")
     seconds = time.perf_counter() - start
-    return LoopResult(seconds, iters * batch / seconds, batch, values.cpu().tolist())
+    return LoopResult(seconds, iters * batch / max(seconds, 1e-9), batch, values.cpu().tolist())
 
 
 def _autocast_dtype() -> torch.dtype:
@@ -143,7 +262,7 @@ def _autocast_dtype() -> torch.dtype:
 
 
 def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_surface: bool,
-                progress: bool = True) -> dict:
+                progress: bool = True, checkpoint: Path | None = None) -> dict:
     """Train a CompenNet-style ``model`` (already on its device) on ``data.train``: the paper's recipe.
 
     Adam(lr, weight_decay), StepLR(lr_step, lr_gamma), batches without replacement, the loss
@@ -168,7 +287,6 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     captures = data.train.captures.to(device)
     frames = data.train.frames.to(device)
     surface = data.surface.to(device) if use_surface else None
-    rates = []
 
     def step(idx: torch.Tensor) -> torch.Tensor:
         x, y = captures[idx], frames[idx]
@@ -179,13 +297,16 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
         scaler.scale(loss).backward()
         scaler.step(optimizer)
         scaler.update()
-        rates.append(scheduler.get_last_lr()[0])
+        rate = scheduler.get_last_lr()[0]
         scheduler.step()
-        return loss.detach()[None]
+        return torch.stack([loss.detach().double(), torch.tensor(rate, dtype=torch.float64, device=device)])
 
+    stateful = {"model": model, "optimizer": optimizer, "scheduler": scheduler}
+    if scaler.is_enabled():
+        stateful["scaler"] = scaler
     model.train()
-    result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device, ("loss",),
-                        f"train {cfg.method} on {data.name}", progress)
+    result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device, ("loss", "lr"),
+                        f"train {cfg.method} on {data.name}", progress, stateful, checkpoint)
     return {"seconds": result.seconds, "samples_per_second": result.samples_per_second,
             "final_loss": result.final_loss, "batch": result.batch,
-            "loss_curve": [(i + 1, v[0], lr) for i, (v, lr) in enumerate(zip(result.values, rates))]}
+            "loss_curve": [(i + 1, v[0], v[1]) for i, v in enumerate(result.values)]}

@@ -16,7 +16,6 @@ from __future__ import annotations
 import csv
 import io
 import shutil
-import tempfile
 from dataclasses import replace
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -29,6 +28,9 @@ from compensation.evaluation.metrics import evaluate
 from compensation.methods import get_method
 from compensation.methods.base import Method, resolve_device
 from compensation.training.config import TrainConfig
+
+CHECKPOINT_FILE = "checkpoint.pt"
+"""Training state of an unfinished run, inside its :func:`partial_dir`."""
 from sim.errors import ProcamError
 from sim.io import atomic_write, read_json, read_png, to_uint8, write_json, write_png
 
@@ -94,6 +96,8 @@ def example_grid(surface: torch.Tensor, captures: torch.Tensor, predicted: torch
 
 
 def _check_out_dir(out_dir: Path, overwrite: bool) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ProcamError(f"{out_dir}: exists and is a file; a run directory is a folder")
     if out_dir.exists() and not overwrite:
         what = "a finished run" if (out_dir / "metrics.json").exists() else "a folder that is not a run"
         raise ProcamError(f"{out_dir}: {what} already exists; choose another output or pass overwrite")
@@ -102,12 +106,36 @@ def _check_out_dir(out_dir: Path, overwrite: bool) -> None:
                           "refusing to replace it")
 
 
+def partial_dir(out_dir: Path) -> Path:
+    """Where a run is built before it is renamed into place: ``.<name>.partial`` beside it.
+
+    It holds the run's ``config.json`` and, while a network trains, ``checkpoint.pt``; a run
+    started again with the same configuration resumes from it, another configuration replaces it.
+    """
+    return out_dir.parent / f".{out_dir.name}.partial"
+
+
+def _prepare_partial(partial: Path, config: dict) -> Path:
+    """The checkpoint path inside a fresh or resumable ``partial`` folder holding ``config``."""
+    if partial.exists():
+        try:
+            same = read_json(partial / "config.json", "run configuration") == config
+        except ProcamError:
+            same = False
+        if not same:
+            shutil.rmtree(partial)
+    partial.mkdir(parents=True, exist_ok=True)
+    write_json(partial / "config.json", config)
+    return partial / CHECKPOINT_FILE
+
+
 def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, progress: bool = True,
               overwrite: bool = False) -> dict:
     """Train ``cfg.method`` on a setup, evaluate on all its test pairs and write a run directory.
 
-    The run is written into ``<out_dir>.tmp-XXXX`` and renamed into place at the end, so an
-    interrupted run never looks finished.
+    The run is built in :func:`partial_dir` and renamed into place at the end, so an interrupted
+    run never looks finished; run again with the same configuration, it resumes from its last
+    training checkpoint (bit-identical to an uninterrupted run on the CPU).
 
     Parameters
     ----------
@@ -132,8 +160,9 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
     Raises
     ------
     ProcamError
-        If the output exists (and ``overwrite`` is not set, or it is not a run), the dataset is
-        incomplete (DatasetError), or ``cfg.init`` does not fit the method.
+        If the output exists (and ``overwrite`` is not set, or it is not a run), its folder cannot
+        be written, the dataset is incomplete (DatasetError), ``init`` does not fit the method,
+        or training is interrupted (its state is kept for a resume).
     """
     setup_dir, out_dir = Path(setup_dir), Path(out_dir)
     _check_out_dir(out_dir, overwrite)
@@ -144,8 +173,18 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
         options = replace(options, init=str(Path(options.init).resolve()))
     resolved = replace(cfg, n_train=len(data.train), n_test=len(data.test), device=str(device),
                        options=options)
+    height, width = data.size
+    config = {"train": resolved.to_dict(), "dataset": str(setup_dir.resolve()), "setup": data.name,
+              "image_size": {"width": width, "height": height}, "procam_version": _package_version(),
+              "torch_version": torch.__version__, "device": _device_name(device)}
+    partial = partial_dir(out_dir)
+    try:
+        checkpoint = _prepare_partial(partial, config)
+    except OSError as exc:
+        raise ProcamError(f"{partial}: cannot write the run there ({exc.strerror or exc})") from None
+
     method = get_method(cfg.method)()
-    stats = method.fit(data, resolved, progress)
+    stats = method.fit(data, resolved, progress, checkpoint)
     predicted = method.predict(data.test.captures, data.surface, batch_size=cfg.eval_batch)
     scores = evaluate(predicted, data.test.frames, batch_size=cfg.eval_batch)
     plain = evaluate(data.test.captures, data.test.frames, batch_size=cfg.eval_batch)
@@ -157,31 +196,26 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
                "final_loss": stats["final_loss"], "n_train": len(data.train),
                "n_test": len(data.test), "iters": getattr(cfg.options, "iters", 1),
                "batch": stats["batch"]}
-    height, width = data.size
-    config = {"train": resolved.to_dict(), "dataset": str(setup_dir.resolve()), "setup": data.name,
-              "image_size": {"width": width, "height": height}, "procam_version": _package_version(),
-              "torch_version": torch.__version__, "device": _device_name(device)}
-
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f"{out_dir.name}.tmp-", dir=out_dir.parent))
     try:
-        write_json(tmp / "config.json", config)
-        _write_loss(tmp, stats["loss_curve"], f"{cfg.method} on {data.name}")
-        method.save(tmp)
-        write_png(tmp / "examples.png", example_grid(data.surface, data.test.captures, predicted,
-                                                     data.test.frames))
-        write_json(tmp / "metrics.json", metrics)
+        _write_loss(partial, stats["loss_curve"], f"{cfg.method} on {data.name}")
+        method.save(partial)
+        write_png(partial / "examples.png", example_grid(data.surface, data.test.captures, predicted,
+                                                         data.test.frames))
+        write_json(partial / "metrics.json", metrics)
+        checkpoint.unlink(missing_ok=True)
         if out_dir.exists():
             _check_out_dir(out_dir, overwrite)
-            old = Path(tempfile.mkdtemp(prefix=f"{out_dir.name}.old-", dir=out_dir.parent))
-            out_dir.rename(old / "run")
-            tmp.rename(out_dir)
+            old = out_dir.parent / f".{out_dir.name}.old"
+            shutil.rmtree(old, ignore_errors=True)
+            out_dir.rename(old)
+            partial.rename(out_dir)
             shutil.rmtree(old)
         else:
-            tmp.rename(out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+            partial.rename(out_dir)
+    except OSError as exc:
+        raise ProcamError(f"{exc.filename or out_dir}: cannot write the run ({exc.strerror or exc}); "
+                          f"the training state is kept in {partial}: run the same command again "
+                          "to finish without training again") from None
     return metrics
 
 
