@@ -15,7 +15,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from sim import camera, registration
+from sim import camera, registration, surfaces
 from sim.cores import usable_cores
 from sim.fidelity import make_renderer, resolve
 from sim.render import mitsuba_seed
@@ -163,7 +163,7 @@ class Simulator:
     def homography_check(self) -> dict:
         """Estimate the camera → canonical homography from projected checkerboards (planar
         setups only) and compare it with the exact map (camera pixels)."""
-        if self.setup.surface.geometry != "plane":
+        if not surfaces.surface_for(self.setup.surface).planar:
             return {"status": "not planar: exact map only"}
         counter = iter(range(1_000))
         hom = registration.estimate_homography(

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sim import camera, images, transport
+from sim import camera, images, surfaces, transport
 from sim.errors import SetupError
 from sim.render import Renderer, mitsuba_seed
 from sim.setup import Setup
@@ -53,11 +53,6 @@ _PROBE_STREAM, _REFERENCE_STREAM = 96, 97
 """Seed streams of the probe renders (the splits use 0–3, calibration 98, the ambient image 99)."""
 
 
-def has_interreflection(setup: Setup) -> bool:
-    """True when surfaces of the setup light each other (a corner; a plane cannot see itself)."""
-    return setup.surface.geometry != "plane"
-
-
 def check_level(setup: Setup, level: str) -> None:
     """Raise :class:`SetupError` unless ``level`` can represent the setup's light transport.
 
@@ -77,7 +72,7 @@ def check_level(setup: Setup, level: str) -> None:
     if level not in CHOICES:
         raise SetupError(f"setup {setup.name!r}: fidelity {level!r}: expected one of "
                          f"{', '.join(repr(c) for c in CHOICES)}")
-    inter = has_interreflection(setup)
+    inter = surfaces.surface_for(setup.surface).interreflection
     if level == "direct" and inter:
         raise SetupError(
             f'setup {setup.name!r}: fidelity "direct" cannot represent surface.geometry = '
@@ -399,7 +394,7 @@ def choose(setup: Setup, spp: int | None = None, n_captures: int = DATASET_CAPTU
     """
     probe = probe or Probe(setup)
     ladder = (int(spp),) if spp else SPP_LADDER
-    inter = has_interreflection(setup)
+    inter = surfaces.surface_for(setup.surface).interreflection
     level = "path" if inter else "transport"
     if inter:
         why_level = f"its surfaces light each other: path tracing (depth {setup.render.max_depth})"

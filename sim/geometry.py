@@ -1,4 +1,4 @@
-"""Poses, pinhole rays and the rectangles a surface is made of — one source for scene and registration.
+"""Poses, pinhole rays and textured rectangles: the geometry every surface and view shares.
 
 Conventions match Mitsuba 3: ``look_at`` gives a frame whose local +x is ``cross(up, dir)`` (the
 image's *left*), +y the image's up and +z the viewing direction. A pinhole with horizontal field of
@@ -114,41 +114,14 @@ class Rect:
         """Ray parameter of the hit of rays ``origin + t dirs`` (dirs (..., 3)); inf on a miss."""
         n = self.normal
         denom = dirs @ n
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):  # rays parallel to the rectangle
             t = ((self.center - origin) @ n) / denom
-        hit = origin + t[..., None] * dirs
+            hit = origin + t[..., None] * dirs
         rel = hit - self.center
         a = rel @ self.ex / (self.ex @ self.ex)
         b = rel @ self.ey / (self.ey @ self.ey)
         ok = (np.abs(denom) > 1e-12) & (t > 1e-6) & (np.abs(a) <= 1) & (np.abs(b) <= 1)
         return np.where(ok, t, np.inf)
-
-
-def surface_rects(geometry: str, size: tuple[float, float], corner_angle: float) -> list[Rect]:
-    """The rectangles of a surface.
-
-    Parameters
-    ----------
-    geometry : {"plane", "corner"}
-        ``plane``: one rectangle in the z = 0 plane, centred at the origin, normal +z.
-        ``corner``: two wings meeting at a vertical edge through the origin, opening towards +z
-        (a room corner seen from inside), each wing ``size[0]`` wide.
-    size : (float, float)
-        Width and height in metres (per wing for a corner).
-    corner_angle : float
-        Opening angle of the corner in degrees (180 is a flat plane).
-    """
-    w, h = size
-    ey = np.array([0.0, h / 2, 0.0])
-    if geometry == "plane":
-        return [Rect(np.zeros(3), np.array([w / 2, 0.0, 0.0]), ey)]
-    if geometry != "corner":
-        raise ValueError(f"unknown surface geometry {geometry!r}; expected 'plane' or 'corner'")
-    s, c = np.sin(np.radians(corner_angle) / 2), np.cos(np.radians(corner_angle) / 2)
-    left = np.array([-s, 0.0, c])   # from the edge outwards, left wing
-    right = np.array([s, 0.0, c])
-    return [Rect(left * w / 2, -left * w / 2, ey, (0.0, 0.5)),
-            Rect(right * w / 2, right * w / 2, ey, (0.5, 1.0))]
 
 
 def first_hit(rects: list[Rect], origin: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

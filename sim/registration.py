@@ -15,7 +15,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from sim import geometry
+from sim import geometry, surfaces
 from sim.setup import Setup
 
 
@@ -46,22 +46,21 @@ def exact_map(setup: Setup, size: tuple[int, int]) -> WarpMap:
     size : (int, int)
         Canonical (width, height) in pixels.
     """
-    s = setup.surface
-    rects = geometry.surface_rects(s.geometry, s.size, s.corner_angle)
+    surface = surfaces.surface_for(setup.surface)
     proj = geometry.Pinhole.from_config(setup.projector, size)
     cam = geometry.Pinhole.from_config(setup.camera)
     rays = proj.pixel_rays()
-    t, idx = geometry.first_hit(rects, proj.position, rays)
+    t, idx = surface.intersect(proj.position, rays)
     hit = np.isfinite(t)
     points = proj.position + np.where(hit, t, 1.0)[..., None] * rays
-    normals = np.stack([r.normal for r in rects])[np.maximum(idx, 0)]
+    normals = surface.normals(points, idx)
     # one-sided surfaces: lit and seen only from the side their normal points to
     facing = (np.sum(normals * (proj.position - points), axis=-1) > 0) & (
         np.sum(normals * (cam.position - points), axis=-1) > 0)
     xy, in_front = cam.project(points)
     to_point = points - cam.position
     dist = np.linalg.norm(to_point, axis=-1)
-    tc, _ = geometry.first_hit(rects, cam.position, to_point / dist[..., None])
+    tc, _ = surface.intersect(cam.position, to_point / dist[..., None])
     unoccluded = np.abs(tc - dist) <= 1e-6 + 1e-5 * dist
     inside = (xy[..., 0] >= 0) & (xy[..., 0] <= cam.width) & (xy[..., 1] >= 0) & (xy[..., 1] <= cam.height)
     return WarpMap(xy.astype(np.float32), hit & facing & in_front & unoccluded & inside)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from sim import geometry, projector, scene
+from sim import geometry, projector, scene, surfaces
 from sim.io import to_float
 from sim.setup import Setup
 from sim.variant import use_variant
@@ -26,8 +26,7 @@ def throw_distance(setup: Setup) -> float:
     """Distance (metres) from the projector to the surface along its optical axis."""
     p = geometry.Pinhole.from_config(setup.projector, (1, 1))
     axis = p.frame()[:, 2]
-    rects = geometry.surface_rects(setup.surface.geometry, setup.surface.size, setup.surface.corner_angle)
-    t, _ = geometry.first_hit(rects, p.position, axis[None])
+    t, _ = surfaces.surface_for(setup.surface).intersect(p.position, axis[None])
     if not np.isfinite(t[0]):
         return float(np.linalg.norm(p.look_at - p.position))
     return float(t[0])

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim import geometry, images
+from sim import images, surfaces
 from sim.setup import Setup
 
 PROJECTOR_KEY = "projector"
@@ -31,20 +31,19 @@ def resolve_fidelity(setup: Setup) -> str:
     ``auto`` of the Simulator and the operator itself live in :mod:`sim.fidelity`.)"""
     fid = setup.render.fidelity
     if fid == "auto":
-        return "direct" if setup.surface.geometry == "plane" else "path"
+        return "path" if surfaces.surface_for(setup.surface).interreflection else "direct"
     return "direct" if fid == "transport" else fid
 
 
 def albedo_texture(setup: Setup) -> np.ndarray:
     """Linear albedo texture of the surface, float32 (H, W, 3) in [0, 1], row 0 at the top.
 
-    For a corner the left half of the texture covers the left wing and the right half the right.
+    Its size and layout over the surface's parts are the surface's
+    (:meth:`sim.surfaces.base.Surface.texture_size`; a corner's wings share one texture, left half
+    on the left wing).
     """
     s = setup.surface
-    n_wide = 2 if s.geometry == "corner" else 1
-    aspect = n_wide * s.size[0] / s.size[1]
-    longest = s.texture_resolution
-    res = (longest, max(1, round(longest / aspect))) if aspect >= 1 else (max(1, round(longest * aspect)), longest)
+    res = surfaces.surface_for(s).texture_size()
     if s.texture == "uniform":
         tex = np.ones((res[1], res[0], 3), np.float32)
     elif s.texture in images.SURFACE_KINDS:
@@ -69,21 +68,11 @@ def _bsdf(setup: Setup, albedo: np.ndarray) -> dict:
 
 
 def surface_shapes(setup: Setup, albedo: np.ndarray) -> dict:
-    """The surface's rectangle shapes (one for a plane, two for a corner) as scene entries.
+    """The surface's shapes (:meth:`sim.surfaces.base.Surface.shapes`) with the setup's material.
 
     ``albedo`` is the surface's linear albedo texture from :func:`albedo_texture`.
     """
-    import mitsuba as mi
-
-    s = setup.surface
-    shapes = {}
-    for i, rect in enumerate(geometry.surface_rects(s.geometry, s.size, s.corner_angle)):
-        w = albedo.shape[1]
-        part = albedo[:, round(rect.tex_span[0] * w):round(rect.tex_span[1] * w)]
-        shapes[f"surface_{i}"] = {"type": "rectangle",
-                                  "to_world": mi.ScalarTransform4f(rect.to_world().tolist()),
-                                  "bsdf": _bsdf(setup, part)}
-    return shapes
+    return surfaces.surface_for(setup.surface).shapes(albedo, lambda part: _bsdf(setup, part))
 
 
 def _look_at(cfg) -> "mi.ScalarTransform4f":

@@ -28,7 +28,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from sim import images
+from sim import images, surfaces
 from sim.errors import SetupError
 
 NAME_PATTERN = "[A-Za-z0-9_-]+"
@@ -39,7 +39,7 @@ TEMPERATURE_RANGE = (1000.0, 25000.0)
 
 @dataclass(frozen=True)
 class SurfaceConfig:
-    """The projection surface (see :func:`sim.geometry.surface_rects` for its exact shape)."""
+    """The projection surface (see :mod:`sim.surfaces` for its exact shape)."""
 
     geometry: str = "plane"
     """``"plane"`` (one rectangle at z = 0) or ``"corner"`` (two planes meeting at a vertical edge)."""
@@ -175,7 +175,7 @@ class Setup:
     @property
     def is_planar_diffuse(self) -> bool:
         """True for a diffuse plane (direct light alone is exact)."""
-        return self.surface.geometry == "plane" and self.surface.material == "diffuse"
+        return surfaces.get_surface(self.surface.geometry).planar and self.surface.material == "diffuse"
 
 
 _SECTIONS = {"surface": SurfaceConfig, "projector": ProjectorConfig, "camera": CameraConfig,
@@ -383,7 +383,7 @@ def _texture(t: _Table, base_dir: Path) -> str:
 
 def _surface(t: _Table, base_dir: Path) -> SurfaceConfig:
     return SurfaceConfig(
-        geometry=t.choice("geometry", ("plane", "corner")),
+        geometry=t.choice("geometry", surfaces.names()),
         size=t.vector("size", 2, _POSITIVE, "metres"),
         corner_angle=t.number("corner_angle", _Range(30, 180, True, True), "degrees"),
         texture=_texture(t, base_dir),
@@ -496,18 +496,20 @@ def _render(t: _Table) -> RenderConfig:
     )
 
 
-def _check_corner(setup: Setup, source: str, prefix: str) -> None:
-    """A corner's wings light each other: only path tracing of depth >= 3 renders that."""
-    if setup.surface.geometry != "corner":
+def _check_interreflection(setup: Setup, source: str, prefix: str) -> None:
+    """A surface whose parts light each other (a corner's wings): only path tracing of depth >= 3
+    renders that."""
+    geometry = setup.surface.geometry
+    if not surfaces.get_surface(geometry).interreflection:
         return
     r = setup.render
     if r.fidelity in ("direct", "transport"):
         raise SetupError(f'{source}: {prefix}render.fidelity = "{r.fidelity}": expected "path" or "auto" for '
-                         f'{prefix}surface.geometry = "corner": a corner\'s wings light each other '
+                         f'{prefix}surface.geometry = "{geometry}": its parts light each other '
                          "(inter-reflection), which only path tracing renders")
     if r.max_depth < 3:
         raise SetupError(f"{source}: {prefix}render.max_depth = {r.max_depth}: expected an integer >= 3 "
-                         f'for {prefix}surface.geometry = "corner" (inter-reflection needs a path depth '
+                         f'for {prefix}surface.geometry = "{geometry}" (inter-reflection needs a path depth '
                          "of at least 3)")
 
 
@@ -533,7 +535,7 @@ def _parse(mapping: Mapping, source: str, base_dir: Path, prefix: str) -> Setup:
     setup = Setup(name=name, surface=_surface(tables["surface"], base_dir),
                   projector=_projector(tables["projector"]), camera=_camera(tables["camera"]),
                   ambient=_ambient(tables["ambient"]), render=_render(tables["render"]))
-    _check_corner(setup, source, prefix)
+    _check_interreflection(setup, source, prefix)
     return setup
 
 

@@ -38,7 +38,7 @@ import numpy as np
 import scipy.sparse
 import torch
 
-from sim import geometry
+from sim import geometry, surfaces
 from sim.errors import ProcamError, SetupError
 from sim.io import atomic_write
 from sim.render import Renderer, mitsuba_seed
@@ -69,9 +69,10 @@ def check_supported(setup: Setup) -> None:
     Raises
     ------
     SetupError
-        For a corner: its wings light each other, which adds a dense inter-reflection part.
+        For a surface whose parts light each other (a corner's wings), which adds a dense
+        inter-reflection part.
     """
-    if setup.surface.geometry != "plane":
+    if surfaces.surface_for(setup.surface).interreflection:
         raise SetupError(
             f'setup {setup.name!r}: fidelity "transport" cannot represent surface.geometry = '
             f'"{setup.surface.geometry}": its surfaces light each other (inter-reflection), which '
@@ -118,8 +119,7 @@ def footprint_ranges(setup: Setup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     corners = geometry.Pinhole(cam.position, cam.look_at, cam.up, fov, wc + 1, hc + 1)
     dirs = corners.pixel_rays()
     frame = cam.frame()
-    s = setup.surface
-    rects = geometry.surface_rects(s.geometry, s.size, s.corner_angle)
+    surface = surfaces.surface_for(setup.surface)
     proj = geometry.Pinhole.from_config(setup.projector)
     lo = np.full((hc + 1, wc + 1, 2), np.inf)
     hi = np.full((hc + 1, wc + 1, 2), -np.inf)
@@ -129,7 +129,7 @@ def footprint_ranges(setup: Setup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         origin = cam.position + frame[:, :2] @ offset
         rays = dirs if radius <= 0 else focus - frame[:, :2] @ offset
         rays = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
-        t, _ = geometry.first_hit(rects, origin, rays)
+        t, _ = surface.intersect(origin, rays)
         hit = np.isfinite(t)
         xy, in_front = proj.project(origin + np.where(hit, t, 1.0)[..., None] * rays)
         ok = (hit & in_front)[..., None]
