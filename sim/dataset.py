@@ -24,10 +24,10 @@ from tqdm import tqdm
 
 from sim import images, registration
 from sim.capture import STREAMS, Simulator, capture_workers, pipelined
-from sim.errors import DatasetError
+from sim.errors import DatasetError, SetupError
 from sim.fidelity import describe
 from sim.io import read_png, write_json, write_png, write_text
-from sim.setup import Setup, dump_setup
+from sim.setup import Setup, dump_setup, load_setup
 
 N_REF = 126
 """125 plain colours (0001 black … 0125 white) and the gray surface frame 0126."""
@@ -130,6 +130,16 @@ def _finish_capture(sim: Simulator, radiance: np.ndarray | None, raw: np.ndarray
     return seconds
 
 
+def _same_setup(setup_file: Path, setup: Setup) -> bool:
+    """True when ``setup_file`` exists and reads back to ``setup`` (whatever its formatting)."""
+    if not setup_file.exists():
+        return False
+    try:
+        return load_setup(setup_file) == setup
+    except SetupError:
+        return False
+
+
 def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None = None,
                 spp: int | None = None, progress: bool = True, overwrite: bool = False) -> Path:
     """Render one setup into ``root/<setup.name>`` (resuming an interrupted run).
@@ -157,9 +167,9 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
     """
     root = Path(root)
     out = root / setup.name
-    resolved = dump_setup(setup)
     setup_file = out / "setup.toml"
-    if setup_file.exists() and setup_file.read_text() != resolved and not overwrite:
+    same_setup = _same_setup(setup_file, setup)
+    if setup_file.exists() and not same_setup and not overwrite:
         raise DatasetError(f"{setup_file}: the folder holds captures of a different setup; "
                            "choose another --out or pass --overwrite")
     frames = write_frames(root, spec)
@@ -167,11 +177,11 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
     meta_file = out / "meta.json"
     if meta_file.exists():
         meta = json.loads(meta_file.read_text())
-        if setup_file.read_text() == resolved and meta.get("size") == list(spec.size) and all(
+        if same_setup and meta.get("size") == list(spec.size) and all(
                 meta.get("counts", {}).get(k, 0) >= n for k, n in counts.items()):
             return out
         meta_file.unlink()  # more captures asked for, or a different setup: no longer finished
-    write_text(setup_file, resolved)
+    write_text(setup_file, dump_setup(setup))
 
     todo = [(split, i) for split, stack in frames.items() for i in range(1, len(stack) + 1)
             if not all((out / "cam" / kind / split / image_name(i)).exists() for kind in ("raw", "warp"))]
