@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim import seeds
 from sim.errors import ProcamError
 from sim.fidelity import (DATASET_CAPTURES, FLOOR_FRACTION, PROBE_CLASSES, SPP_LADDER, Probe,
                           check_level, choose)
@@ -78,7 +79,7 @@ def time_per_capture(renderer: Renderer, frame: np.ndarray, repeats: int = 3) ->
     times = []
     for i in range(repeats + 1):
         t0 = time.perf_counter()
-        renderer.radiance(frame, seed=1000 + i)
+        renderer.radiance(frame, seed=seeds.BENCH_TIMING + i)
         times.append(time.perf_counter() - t0)
     return float(np.median(times[1:]))
 

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from sim import images, registration
-from sim.capture import STREAMS, Simulator, capture_workers, pipelined
+from sim import images, registration, seeds
+from sim.capture import Simulator, capture_workers, pipelined
 from sim.errors import DatasetError, SetupError
 from sim.fidelity import describe
 from sim.io import read_png, write_json, write_png, write_text
@@ -76,8 +76,8 @@ def projector_frames(spec: FrameSpec) -> dict[str, np.ndarray]:
         user = images.load_image_folder(spec.images_dir, spec.n_train + spec.n_test, spec.size)
         return {"ref": ref, "train": user[:spec.n_train], "test": user[spec.n_train:]}
     return {"ref": ref,
-            "train": images.projector_frames(spec.n_train, spec.size, spec.seed, stream=0),
-            "test": images.projector_frames(spec.n_test, spec.size, spec.seed, stream=1)}
+            "train": images.projector_frames(spec.n_train, spec.size, spec.seed, seeds.TRAIN_FRAMES),
+            "test": images.projector_frames(spec.n_test, spec.size, spec.seed, seeds.TEST_FRAMES)}
 
 
 def write_frames(root: Path, spec: FrameSpec) -> dict[str, np.ndarray]:
@@ -196,11 +196,12 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         t0 = time.perf_counter()
         raw = read_png(raw_file) if raw_file.exists() else None  # written atomically: complete
         finish_seconds["png"] += time.perf_counter() - t0
-        return (sim.linear(frames[split][i - 1], STREAMS[split], i) if raw is None else None), raw
+        return (sim.linear(frames[split][i - 1], seeds.STREAMS[split], i) if raw is None else None), raw
 
     def finish(job: tuple[str, int], rendered) -> dict[str, float]:
         split, i = job
-        return _finish_capture(sim, *rendered, STREAMS[split], i, out / "cam" / "raw" / split / image_name(i),
+        return _finish_capture(sim, *rendered, seeds.STREAMS[split], i,
+                               out / "cam" / "raw" / split / image_name(i),
                                out / "cam" / "warp" / split / image_name(i))
 
     with tqdm(total=len(todo), desc=f"render {setup.name}", unit="capture", disable=not progress) as bar:
@@ -227,7 +228,7 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
                        "loaded_from_cache": r.loaded_from_cache} if r.fidelity == "transport" else None),
         "ambient_spp": setup.render.ambient_spp,
         "seeds": {"render": setup.render.seed, "frames": spec.seed,
-                  "streams": STREAMS},
+                  "streams": seeds.STREAMS},
         "size": list(spec.size),
         "camera_resolution": list(setup.camera.resolution),
         "counts": counts,

@@ -24,9 +24,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sim import camera, images, transport
+from sim import camera, images, seeds, transport
 from sim.errors import SetupError
-from sim.render import Renderer, mitsuba_seed
+from sim.render import Renderer
 from sim.setup import Setup
 
 LEVELS = ("path", "direct", "transport")
@@ -49,8 +49,6 @@ PROBE_WINDOW = 64
 so a window measures it at a fraction of the cost)."""
 DATASET_CAPTURES = 826
 """Captures of one dataset setup (126 + 500 + 200): the count ``auto`` amortises a calibration over."""
-_PROBE_STREAM, _REFERENCE_STREAM = 96, 97
-"""Seed streams of the probe renders (the splits use 0–3, calibration 98, the ambient image 99)."""
 
 
 def has_interreflection(setup: Setup) -> bool:
@@ -113,15 +111,22 @@ def probe_frame(kind: str, size: tuple[int, int], seed: int) -> np.ndarray:
     size : (int, int)
         (width, height) in pixels.
     seed : int
-        Seed of the random content.
+        Seed of the random content (the setup's ``render.seed``; see :mod:`sim.seeds`).
 
     Returns
     -------
     numpy.ndarray
         uint8 (height, width, 3), encoded projector input.
+
+    Raises
+    ------
+    ValueError
+        If ``kind`` is not a probe class.
     """
+    if kind not in PROBE_CLASSES:
+        raise ValueError(f"probe class {kind!r}: expected one of {', '.join(PROBE_CLASSES)}")
     w, h = size
-    rng = np.random.default_rng([seed, PROBE_CLASSES.index(kind) if kind in PROBE_CLASSES else 99])
+    rng = np.random.default_rng([seed, PROBE_CLASSES.index(kind)])
     if kind == "smooth":
         y, x = np.mgrid[0:h, 0:w] / max(w, h)
         out = np.full((h, w, 3), 0.5)
@@ -136,9 +141,7 @@ def probe_frame(kind: str, size: tuple[int, int], seed: int) -> np.ndarray:
         return np.broadcast_to(np.where(on, 255, 0).astype(np.uint8)[None, :, None], (h, w, 3)).copy()
     if kind == "random":
         return rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
-    if kind == "natural":
-        return images.projector_frames(1, (w, h), seed, stream=7)[0]
-    raise ValueError(f"probe class {kind!r}: expected one of {', '.join(PROBE_CLASSES)}")
+    return images.projector_frames(1, (w, h), seed, seeds.PROBE_FRAMES)[0]  # natural
 
 
 def camera_signal(radiance: np.ndarray, cfg) -> np.ndarray:
@@ -270,13 +273,13 @@ class Probe:
         for i, (k, frame) in enumerate(self.frames.items()):
             t0 = time.perf_counter()
             irr = self._emit(frame)
-            halves = [ref.projector_radiance(irr, mitsuba_seed(setup.render.seed, _REFERENCE_STREAM,
-                                                               2 * i + j)) for j in range(2)]
+            halves = [ref.projector_radiance(irr, seeds.mitsuba_seed(setup.render.seed, seeds.REFERENCE,
+                                                                     2 * i + j)) for j in range(2)]
             seconds.append(time.perf_counter() - t0)
             self._reference[k] = [camera_signal(r + self._ambient, cfg) for r in halves]
             mean = 0.5 * (halves[0] + halves[1]) + self._ambient
             self.floors[k] = noise_floor(camera_signal(mean, cfg), cfg)
-            rng = np.random.default_rng([setup.render.seed, _REFERENCE_STREAM, i])
+            rng = seeds.noise_rng(setup.render.seed, seeds.REFERENCE, i)
             noisy = camera.capture(mean, cfg, rng).astype(np.float64) / 255
             clean = camera.encode(camera_signal(mean, cfg).astype(np.float64), cfg.response)
             self.floors_encoded[k] = float(np.sqrt(np.mean((noisy - clean) ** 2)))
@@ -305,7 +308,7 @@ class Probe:
         for i, (k, frame) in enumerate(self.frames.items()):
             t0 = time.perf_counter()
             rad = renderer.projector_radiance(self._emit(frame),
-                                              mitsuba_seed(self.setup.render.seed, _PROBE_STREAM, i))
+                                              seeds.mitsuba_seed(self.setup.render.seed, seeds.PROBE, i))
             seconds = time.perf_counter() - t0
             sig = camera_signal(rad + self._ambient, cfg)
             a, b = self._reference[k]

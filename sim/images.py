@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from sim import seeds
 from sim.errors import DatasetError, SetupError
 from sim.io import read_png, to_float
 
@@ -32,7 +33,6 @@ _PHOTOS = ("astronaut.png", "chelsea.png", "coffee.png", "rocket.jpg", "hubble_d
            "ihc.png", "retina.jpg", "color.png", "motorcycle_left.png")
 _MAX_SIDE = 1024  # sources are shrunk to this longest side once, at load
 _MIN_SIDE = 256  # smaller images in the colour package (icons, logos) are skipped
-_FRAME_TAG, _SURFACE_TAG = 1, 2  # first seed word: frames and surfaces never share a stream
 
 
 def srgb_decode(encoded: np.ndarray) -> np.ndarray:
@@ -217,7 +217,7 @@ _PATTERNS = (_noise, _stripes, _checker, _gradient, _shapes)
 
 def _frame(seed: int, stream: int, index: int, w: int, h: int) -> np.ndarray:
     """Projector frame ``index`` of (seed, stream): uint8 (H, W, 3), sRGB-encoded."""
-    rng = np.random.default_rng([_FRAME_TAG, seed, stream, index])
+    rng = np.random.default_rng([seeds.FRAME_TAG, seed, stream, index])
     choice = rng.random()  # 45 % photographs, 30 % patterns, 25 % blends of both
     if choice < 0.45:
         img = _photo(rng, w, h)
@@ -263,7 +263,8 @@ def projector_frames(count: int, size, seed: int, stream: int = 0) -> np.ndarray
     """``count`` colourful, textured, mutually different projector frames.
 
     Frame ``i`` depends only on (seed, stream, i), so a longer run starts with a shorter run's
-    frames; training uses stream 0, testing stream 1 (non-negative integers).
+    frames; a dataset's training and test frames use the streams :data:`sim.seeds.TRAIN_FRAMES`
+    and :data:`sim.seeds.TEST_FRAMES` (non-negative integers).
 
     Parameters
     ----------
@@ -308,7 +309,7 @@ def surface_texture(kind: str, resolution, seed: int) -> np.ndarray:
         raise ValueError(f"unknown surface texture kind {kind!r}; expected one of "
                          f"{', '.join(SURFACE_KINDS)}")
     w, h = _wh(resolution)
-    rng = np.random.default_rng([_SURFACE_TAG, seed, SURFACE_KINDS.index(kind)])
+    rng = np.random.default_rng([seeds.SURFACE_TAG, seed, SURFACE_KINDS.index(kind)])
     if kind in ("brick", "grass", "gravel"):
         gray = _load(_skimage_file(f"{kind}.png"))[..., 0]
         gray = np.pad(gray, ((0, max(0, h - gray.shape[0])), (0, max(0, w - gray.shape[1]))),
