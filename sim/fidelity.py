@@ -144,12 +144,6 @@ def probe_frame(kind: str, size: tuple[int, int], seed: int) -> np.ndarray:
     return images.projector_frames(1, (w, h), seed, seeds.PROBE_FRAMES)[0]  # natural
 
 
-def camera_signal(radiance: np.ndarray, cfg) -> np.ndarray:
-    """Noiseless linear sensor signal: radiance × exposure × white balance, clipped to [0, 1]."""
-    gain = np.float32(cfg.exposure) * np.asarray(cfg.white_balance, np.float32)
-    return np.clip(np.asarray(radiance, np.float32) * gain, 0.0, 1.0)
-
-
 def noise_floor(signal: np.ndarray, cfg) -> float:
     """RMS of the camera's own noise over an image, in linear signal units.
 
@@ -159,7 +153,8 @@ def noise_floor(signal: np.ndarray, cfg) -> float:
     Parameters
     ----------
     signal : numpy.ndarray
-        Noiseless linear signal in [0, 1] (:func:`camera_signal`), any shape.
+        Noiseless linear signal in [0, 1] (:func:`sim.camera.sensor_signal` without noise), any
+        shape.
     cfg : CameraConfig
         Noise levels and response curve.
 
@@ -276,12 +271,14 @@ class Probe:
             halves = [ref.projector_radiance(irr, seeds.mitsuba_seed(setup.render.seed, seeds.REFERENCE,
                                                                      2 * i + j)) for j in range(2)]
             seconds.append(time.perf_counter() - t0)
-            self._reference[k] = [camera_signal(r + self._ambient, cfg) for r in halves]
+            self._reference[k] = [camera.sensor_signal(r + self._ambient, cfg.exposure, cfg.white_balance)
+                                  for r in halves]
             mean = 0.5 * (halves[0] + halves[1]) + self._ambient
-            self.floors[k] = noise_floor(camera_signal(mean, cfg), cfg)
+            signal = camera.sensor_signal(mean, cfg.exposure, cfg.white_balance)
+            self.floors[k] = noise_floor(signal, cfg)
             rng = seeds.noise_rng(setup.render.seed, seeds.REFERENCE, i)
             noisy = camera.capture(mean, cfg, rng).astype(np.float64) / 255
-            clean = camera.encode(camera_signal(mean, cfg).astype(np.float64), cfg.response)
+            clean = camera.encode(signal.astype(np.float64), cfg.response)
             self.floors_encoded[k] = float(np.sqrt(np.mean((noisy - clean) ** 2)))
         self.reference_seconds = float(np.mean(seconds[1:] or seconds))  # the first one compiles
 
@@ -310,7 +307,7 @@ class Probe:
             rad = renderer.projector_radiance(self._emit(frame),
                                               seeds.mitsuba_seed(self.setup.render.seed, seeds.PROBE, i))
             seconds = time.perf_counter() - t0
-            sig = camera_signal(rad + self._ambient, cfg)
+            sig = camera.sensor_signal(rad + self._ambient, cfg.exposure, cfg.white_balance)
             a, b = self._reference[k]
             enc = [camera.encode(s.astype(np.float64), cfg.response) for s in (sig, a, b)]
             out[k] = {"rmse": unbiased_rmse(sig, a, b), "rmse_encoded": unbiased_rmse(*enc),
