@@ -191,6 +191,33 @@ def unbiased_rmse(x: np.ndarray, ref_a: np.ndarray, ref_b: np.ndarray) -> float:
     return float(math.sqrt(max(float(mse), 0.0)))
 
 
+def psnr_from_rmse(rmse: float, peak: float = 1.0) -> float:
+    """Peak signal-to-noise ratio in dB of an RMS error: ``20 log10(peak / rmse)``.
+
+    Parameters
+    ----------
+    rmse : float
+        RMS error (>= 0), in the units of ``peak``.
+    peak : float
+        The largest value of the signal: 1 for the full well (linear) or the top code (encoded).
+
+    Returns
+    -------
+    float
+        dB; ``inf`` for an error of 0.
+
+    Examples
+    --------
+    >>> psnr_from_rmse(0.01)
+    40.0
+    >>> psnr_from_rmse(0.0)
+    inf
+    """
+    if rmse == 0:
+        return math.inf
+    return 20 * (math.log10(peak) - math.log10(rmse))
+
+
 def window_setup(setup: Setup, window: int | None) -> Setup:
     """The setup with its camera cropped to a central window of about ``window`` pixels a side.
 
