@@ -36,7 +36,19 @@ _MIN_SIDE = 256  # smaller images in the colour package (icons, logos) are skipp
 
 
 def srgb_decode(encoded: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB decoding (EOTF): sRGB-encoded values in [0, 1] -> linear, float32."""
+    """IEC 61966-2-1 sRGB decoding (EOTF): sRGB-encoded values in [0, 1] -> linear, float32.
+
+    The formula of ``colour.cctf_decoding(x, function="sRGB")``, evaluated in float32. colour
+    computes in float64; its result rounded to float32 differs from this one in most values by
+    1-4 ulps (relative 3e-7 at most), enough to move about 0.05 % of the 8-bit camera values of a
+    rendered dataset by one code. This evaluation is kept so that datasets render byte for byte
+    as before.
+
+    Examples
+    --------
+    >>> [round(float(v), 6) for v in srgb_decode([0.0, 0.5, 1.0])]
+    [0.0, 0.214041, 1.0]
+    """
     x = np.asarray(encoded, np.float32)
     return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
