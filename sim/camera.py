@@ -1,5 +1,5 @@
 """The camera outside Mitsuba: exposure, white balance, Poisson-Gaussian sensor noise, clipping at
-full well, a response curve and 8-bit quantisation (design section 2).
+full well, a response curve and 8-bit quantisation, applied to the rendered linear radiance.
 
 Response curves map the linear sensor signal in [0, 1] (1 = full well) to the encoded value in
 [0, 1], strictly increasing with an inverse. Two families are offered:

@@ -1,4 +1,4 @@
-"""Writing a dataset in the layout of design.md §5 — atomically and resumably.
+"""Writing a dataset in the CompenNet code's folder layout (below) — atomically and resumably.
 
 ```
 DATA_ROOT/frames.json                     how the shared projector frames were made

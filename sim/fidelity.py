@@ -1,6 +1,6 @@
 """The fidelity ladder: ``path``, ``direct``, ``transport`` and the measured ``auto`` choice.
 
-*Model no more than a scene needs* (design.md §3). Every way procam produces a capture is a level:
+*Model no more than a scene needs*. Every way procam produces a capture is a level:
 
 - ``path``: Mitsuba path tracing to ``render.max_depth`` (inter-reflection);
 - ``direct``: Mitsuba direct light only (exact where no surface sees another: a plane);
@@ -39,8 +39,8 @@ PROBE_CLASSES = ("smooth", "stripes1", "stripes2", "random", "natural")
 """Probe frames: low-frequency colour fields, 1- and 2-pixel black/white stripes, independent
 random pixels, and a generated dataset frame (:func:`probe_frame`)."""
 FLOOR_FRACTION = 1.0
-"""``auto`` accepts a level whose RMS error is at most this fraction of the camera's RMS noise (the
-issue's rule: below the camera's own noise floor). Added in quadrature such an error raises the
+"""``auto`` accepts a level whose RMS error is at most this fraction of the camera's RMS noise: an
+error below the camera's own noise floor. Added in quadrature such an error raises the
 total noise by at most sqrt(2) - 1 = 41 %; with ``transport`` it is the same in every capture."""
 AUTO_REFERENCE_SPP = 256
 """Samples per pixel of ``auto``'s path-traced reference (two renders of about half as many)."""

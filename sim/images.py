@@ -1,6 +1,6 @@
 """Deterministic images: plain colours, projector frames, surface textures and user images.
 
-No internet (design.md §6): photographs are read, once per process, straight from files bundled
+Nothing is downloaded: photographs are read, once per process, straight from files bundled
 in installed wheels (scikit-image's offline ``skimage/data``, matplotlib's sample data, PNG/JPEG
 files of at least 256² in the ``colour`` package), never through a loader that may download.
 Frames mix seeded crops, flips, hue/saturation/brightness changes of them with procedural

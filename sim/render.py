@@ -1,4 +1,4 @@
-"""Linear camera radiance of a setup for any projector frame (design.md §3).
+"""Linear camera radiance of a setup for any projector frame.
 
 The scene is built once; each projector frame is swapped into the projector's texture through
 ``mi.traverse`` (no reload, no recompilation). The ambient-only image is rendered once per setup at

@@ -1,4 +1,4 @@
-"""The ``transport`` fidelity level: a per-setup light-transport operator (design.md §3).
+"""The ``transport`` fidelity level: a per-setup light-transport operator.
 
 Light transport is linear in the projector irradiance, so a capture's radiance is ``T p + b``
 for the setup's own sparse matrix ``T`` (camera pixel × projector pixel, per colour channel) and
