@@ -26,6 +26,7 @@ import numpy as np
 
 from sim import camera, images, seeds, transport
 from sim.errors import SetupError
+from sim.io import to_uint8
 from sim.render import Renderer
 from sim.setup import Setup
 
@@ -134,7 +135,7 @@ def probe_frame(kind: str, size: tuple[int, int], seed: int) -> np.ndarray:
             for _ in range(3):
                 fx, fy = rng.uniform(-2, 2, 2)
                 out[..., c] += 0.13 * np.sin(2 * np.pi * (fx * x + fy * y) + rng.uniform(0, 2 * np.pi))
-        return np.rint(255 * np.clip(out, 0, 1)).astype(np.uint8)
+        return to_uint8(out)
     if kind in ("stripes1", "stripes2"):
         width = int(kind[-1])
         on = (np.arange(w) // width) % 2 == 0

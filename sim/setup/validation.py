@@ -191,31 +191,32 @@ def _surface(t: _Table, base_dir: Path) -> SurfaceConfig:
     )
 
 
-def _pose(t: _Table) -> dict:
-    """position, look_at and up of a projector or camera, checked for a usable view."""
-    pose = {"position": t.vector("position", 3, unit="metres"),
+def _view(t: _Table) -> dict:
+    """resolution, fov, position, look_at and up of a projector or camera, checked for a usable
+    view."""
+    view = {"resolution": t.vector("resolution", 2, _PIXELS, "pixels", integer=True),
+            "fov": t.number("fov", _FOV, "degrees"),
+            "position": t.vector("position", 3, unit="metres"),
             "look_at": t.vector("look_at", 3, unit="metres"),
             "up": t.vector("up", 3)}
-    (px, py, pz), (lx, ly, lz), up = pose["position"], pose["look_at"], pose["up"]
+    (px, py, pz), (lx, ly, lz), up = view["position"], view["look_at"], view["up"]
     if not pz > 0:
-        raise t.error("position", pose["position"], "expected z > 0 metres (in front of the surface at z = 0)")
+        raise t.error("position", view["position"], "expected z > 0 metres (in front of the surface at z = 0)")
     axis = (lx - px, ly - py, lz - pz)
     if not axis[2] < 0:
-        raise t.error("look_at", pose["look_at"], f"expected a point of smaller z than "
+        raise t.error("look_at", view["look_at"], f"expected a point of smaller z than "
                                                   f"{t.dotted('position')} (the view looks towards -z)")
     cross = (up[1] * axis[2] - up[2] * axis[1], up[2] * axis[0] - up[0] * axis[2],
              up[0] * axis[1] - up[1] * axis[0])
     if math.hypot(*cross) <= 1e-9 * math.hypot(*up) * math.hypot(*axis):
         raise t.error("up", up, f"expected a direction not parallel to {t.dotted('look_at')} - "
                                 f"{t.dotted('position')}")
-    return pose
+    return view
 
 
 def _projector(t: _Table) -> ProjectorConfig:
     return ProjectorConfig(
-        resolution=t.vector("resolution", 2, _PIXELS, "pixels", integer=True),
-        fov=t.number("fov", _FOV, "degrees"),
-        **_pose(t),
+        **_view(t),
         brightness=t.number("brightness", _POSITIVE),
         gamma=t.number("gamma", _Range(0.1, 10, True, True)),
         black_level=t.number("black_level", _Range(0, 0.2, hi_open=True)),
@@ -245,9 +246,7 @@ def _bit_depth(t: _Table) -> int:
 
 def _camera(t: _Table) -> CameraConfig:
     return CameraConfig(
-        resolution=t.vector("resolution", 2, _PIXELS, "pixels", integer=True),
-        fov=t.number("fov", _FOV, "degrees"),
-        **_pose(t),
+        **_view(t),
         aperture_radius=t.number("aperture_radius", _NON_NEGATIVE, "metres"),
         focus_distance=t.number("focus_distance", _POSITIVE, "metres"),
         exposure=t.number("exposure", _POSITIVE),
