@@ -2,8 +2,8 @@
 
 :class:`Simulator` is the public entry point the compensation side uses (closed loop) and the
 dataset writer builds on. Each capture is identified by a ``(stream, index)`` pair that seeds both
-the Monte-Carlo sampler and the camera noise, so a capture is reproducible bit for bit and two
-different captures never share noise.
+the Monte-Carlo sampler and the camera noise (the streams are listed in :mod:`sim.seeds`), so a
+capture is reproducible bit for bit and two different captures never share noise.
 """
 from __future__ import annotations
 

@@ -30,7 +30,7 @@ class SurfaceConfig:
     """``"uniform"``, a generator kind of :data:`sim.images.SURFACE_KINDS`, or the absolute path of
     an image file (a relative path in a setup file is relative to that file)."""
     texture_seed: int = 0
-    """Seed (>= 0) of the texture generator."""
+    """Seed (>= 0) of the texture generator (see :mod:`sim.seeds`)."""
     texture_resolution: int = 512
     """Pixels along the longest side of the albedo texture, 16..4096."""
     albedo_scale: float = 0.8
@@ -131,7 +131,7 @@ class RenderConfig:
     max_depth: int = 3
     """Path depth for path tracing (>= 2; a corner needs >= 3 for its inter-reflection)."""
     seed: int = 0
-    """Seed base (>= 0) of the Mitsuba sampler and of the camera noise."""
+    """Seed base (>= 0) of the Mitsuba sampler and of the camera noise (see :mod:`sim.seeds`)."""
 
 
 @dataclass(frozen=True)
