@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from compensation.cli import load_setups
 from sim import images
 from sim.capture import Simulator
 from sim.dataset import FrameSpec, write_setup
 from sim.fidelity import DATASET_CAPTURES
+from sim.setup import load_setups
 
 SIZE = (256, 256)
 

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from compensation.cli import load_setups
 from sim import camera, images
 from sim.capture import Simulator
 from sim.dataset import FrameSpec, write_setup
 from sim.io import write_png
 from sim.render import Renderer
+from sim.setup import load_setups
 
 
 def psnr(a: np.ndarray, b: np.ndarray, peak: float) -> float:

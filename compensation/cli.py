@@ -8,6 +8,7 @@ import typing
 from pathlib import Path
 
 from sim.errors import ProcamError
+from sim.setup import load_setups
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -21,22 +22,6 @@ def _size(text: str) -> tuple[int, int]:
     if len(parts) != 2 or min(parts) < 4:
         raise argparse.ArgumentTypeError(f"size {text!r}: expected N or WxH, each >= 4 pixels")
     return parts[0], parts[1]
-
-
-def load_setups(spec: str) -> list:
-    """Setups named on the command line: a setup file, a suite file or a shipped scene name."""
-    from sim.setup import load_setup, load_suite, scene_path
-
-    path = Path(spec)
-    if not path.exists():
-        path = scene_path(spec)
-    import tomllib
-
-    try:
-        is_suite = "setup" in tomllib.loads(path.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise ProcamError(f"{path}: cannot read setup file ({exc})") from None
-    return load_suite(path) if is_suite else [load_setup(path)]
 
 
 def cmd_render(args: argparse.Namespace) -> None:

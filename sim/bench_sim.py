@@ -1,4 +1,4 @@
-"""Speed against accuracy of every fidelity level of a setup: ``procam bench-sim`` (issue 5).
+"""Speed against accuracy of every fidelity level of a setup: ``procam bench-sim``.
 
 For each level × spp, the probe frames of every class (:data:`sim.fidelity.PROBE_CLASSES`) are
 rendered through the whole camera and compared with a path-traced reference of ``reference_spp``
@@ -21,36 +21,35 @@ reference's time is that of its two renders per frame. PSNR is ``10 log10(1 / MS
 from __future__ import annotations
 
 import csv
-import math
 import textwrap
 import time
 from pathlib import Path
 
 import numpy as np
 
+from sim import seeds
 from sim.errors import ProcamError
-from sim.fidelity import (DATASET_CAPTURES, FLOOR_FRACTION, PROBE_CLASSES, SPP_LADDER, Probe,
-                          check_level, choose)
+from sim.fidelity import (DATASET_CAPTURES, FLOOR_FRACTION, LEVELS, PROBE_CLASSES, SPP_LADDER, Probe,
+                          check_level, choose, psnr_from_rmse)
 from sim.render import Renderer
 from sim.setup import Setup
 from sim.transport import TransportRenderer
 
-LEVELS = ("path", "direct", "transport")
-"""Levels charted."""
 MARKERS = {"path": "o", "direct": "s", "transport": "^"}
 _PSNR_CAP = 99.0
 """dB shown for an error indistinguishable from the reference's own noise."""
 
 
 def psnr(rmse: float) -> float:
-    """``10 log10(1 / rmse²)`` in dB for a peak of 1, capped at 99 dB.
+    """PSNR in dB for a peak of 1 (:func:`sim.fidelity.psnr_from_rmse`), to 3 decimals, capped
+    at 99 dB.
 
     Examples
     --------
-    >>> psnr(0.01)
-    40.0
+    >>> psnr(0.01), psnr(0.0)
+    (40.0, 99.0)
     """
-    return _PSNR_CAP if rmse <= 10 ** (-_PSNR_CAP / 20) else round(-20 * math.log10(rmse), 3)
+    return min(_PSNR_CAP, round(psnr_from_rmse(rmse), 3))
 
 
 def _renderer(setup: Setup, level: str, spp: int) -> tuple[Renderer | None, str]:
@@ -78,7 +77,7 @@ def time_per_capture(renderer: Renderer, frame: np.ndarray, repeats: int = 3) ->
     times = []
     for i in range(repeats + 1):
         t0 = time.perf_counter()
-        renderer.radiance(frame, seed=1000 + i)
+        renderer.radiance(frame, seed=seeds.BENCH_TIMING + i)
         times.append(time.perf_counter() - t0)
     return float(np.median(times[1:]))
 

@@ -1,5 +1,5 @@
 """The camera outside Mitsuba: exposure, white balance, Poisson-Gaussian sensor noise, clipping at
-full well, a response curve and 8-bit quantisation (design section 2).
+full well, a response curve and 8-bit quantisation, applied to the rendered linear radiance.
 
 Response curves map the linear sensor signal in [0, 1] (1 = full well) to the encoded value in
 [0, 1], strictly increasing with an inverse. Two families are offered:
@@ -169,14 +169,15 @@ def decode(encoded, response: str) -> np.ndarray:
     return _apply(encoded, response, 1)
 
 
-def sensor_signal(radiance: np.ndarray, exposure: float, white_balance, shot_noise: float,
-                  read_noise: float, rng: np.random.Generator) -> np.ndarray:
+def sensor_signal(radiance: np.ndarray, exposure: float, white_balance, shot_noise: float = 0.0,
+                  read_noise: float = 0.0, rng: np.random.Generator | None = None) -> np.ndarray:
     """Linear sensor signal with Poisson-Gaussian noise, clipped at full well.
 
     ``s = radiance * exposure * white_balance``; with ``shot_noise = a > 0`` the signal is
     ``a * Poisson(s / a)`` (``s / a`` electrons), then Gaussian read noise of standard deviation
     ``read_noise`` is added and the result clipped to [0, 1]. Before clipping the variance is
-    ``a * s + read_noise**2`` (see :func:`noise_sigma`).
+    ``a * s + read_noise**2`` (see :func:`noise_sigma`). Without noise (the defaults) this is
+    the noiseless signal, ``s`` clipped to [0, 1].
 
     Parameters
     ----------
@@ -190,13 +191,18 @@ def sensor_signal(radiance: np.ndarray, exposure: float, white_balance, shot_noi
         Poisson gain a in signal units (>= 0; 0 = no shot noise).
     read_noise : float
         Gaussian read-noise standard deviation in signal units (>= 0).
-    rng : numpy.random.Generator
-        Source of the noise (seeded by the caller); unused when both noise terms are 0.
+    rng : numpy.random.Generator, optional
+        Source of the noise (seeded by the caller); needed unless both noise terms are 0.
 
     Returns
     -------
     numpy.ndarray
         float32 signal in [0, 1], the shape of ``radiance``.
+
+    Examples
+    --------
+    >>> sensor_signal(np.array([[0.25, 0.5, 2.0]]), 2.0, (1.0, 1.0, 1.0)).tolist()
+    [[0.5, 1.0, 1.0]]
     """
     rad = np.asarray(radiance, dtype=np.float32)
     if rad.ndim < 1 or rad.shape[-1] != 3:
@@ -207,6 +213,8 @@ def sensor_signal(radiance: np.ndarray, exposure: float, white_balance, shot_noi
     if exposure <= 0 or shot_noise < 0 or read_noise < 0:
         raise ValueError(f"camera: expected exposure > 0 and noise levels >= 0, got exposure="
                          f"{exposure}, shot_noise={shot_noise}, read_noise={read_noise}")
+    if rng is None and (shot_noise > 0 or read_noise > 0):
+        raise ValueError("camera: a random generator is needed for shot or read noise")
     s = np.maximum(rad * np.float32(exposure) * wb, 0.0)
     if shot_noise > 0:
         s = shot_noise * rng.poisson(s.astype(np.float64) / shot_noise)

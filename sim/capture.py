@@ -2,8 +2,8 @@
 
 :class:`Simulator` is the public entry point the compensation side uses (closed loop) and the
 dataset writer builds on. Each capture is identified by a ``(stream, index)`` pair that seeds both
-the Monte-Carlo sampler and the camera noise, so a capture is reproducible bit for bit and two
-different captures never share noise.
+the Monte-Carlo sampler and the camera noise (the streams are listed in :mod:`sim.seeds`), so a
+capture is reproducible bit for bit and two different captures never share noise.
 """
 from __future__ import annotations
 
@@ -15,14 +15,10 @@ from typing import TypeVar
 
 import numpy as np
 
-from sim import camera, registration, surfaces
+from sim import camera, registration, seeds, surfaces
 from sim.cores import usable_cores
 from sim.fidelity import make_renderer, resolve
-from sim.render import mitsuba_seed
 from sim.setup import Setup
-
-STREAMS = {"ref": 0, "train": 1, "test": 2, "registration": 3}
-"""Seed streams of the dataset splits; other users (closed loop) pick streams >= 16."""
 
 Item = TypeVar("Item")
 Result = TypeVar("Result")
@@ -106,14 +102,14 @@ class Simulator:
     def linear(self, frame: np.ndarray, stream: int, index: int) -> np.ndarray:
         """Linear camera radiance (float32, camera resolution) of one projector frame."""
         t0 = time.perf_counter()
-        out = self.renderer.radiance(frame, mitsuba_seed(self.setup.render.seed, stream, index))
+        out = self.renderer.radiance(frame, seeds.mitsuba_seed(self.setup.render.seed, stream, index))
         self.timings["render"] += time.perf_counter() - t0
         return out
 
     def expose(self, radiance: np.ndarray, stream: int, index: int) -> np.ndarray:
         """The camera model on linear radiance: 8-bit capture at camera resolution, noise seeded
         by ``(seed, stream, index)``. Keeps no timings, so worker threads may call it."""
-        rng = np.random.default_rng([self.setup.render.seed, stream, index])
+        rng = seeds.noise_rng(self.setup.render.seed, stream, index)
         return camera.capture(radiance, self.setup.camera, rng)
 
     def raw(self, frame: np.ndarray, stream: int, index: int) -> np.ndarray:
@@ -139,7 +135,7 @@ class Simulator:
         frames : numpy.ndarray
             uint8 (N, H, W, 3) projector frames at the canonical size (or float in [0, 1]).
         stream : int
-            Seed stream (see :data:`STREAMS`); frame k uses index ``start + k``.
+            Capture stream (:mod:`sim.seeds`); frame k uses index ``start + k``.
 
         Returns
         -------
@@ -167,7 +163,7 @@ class Simulator:
             return {"status": "not planar: exact map only"}
         counter = iter(range(1_000))
         hom = registration.estimate_homography(
-            lambda f: self.raw(f, STREAMS["registration"], next(counter)), self.size)
+            lambda f: self.raw(f, seeds.REGISTRATION, next(counter)), self.size)
         if hom is None:
             return {"status": "checkerboard corners not found"}
         return {"status": "ok", **registration.homography_error(hom, self.warp_map)}

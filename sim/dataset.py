@@ -1,4 +1,4 @@
-"""Writing a dataset in the layout of design.md §5 — atomically and resumably.
+"""Writing a dataset in the CompenNet code's folder layout (below) — atomically and resumably.
 
 ```
 DATA_ROOT/frames.json                     how the shared projector frames were made
@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from sim import images, registration
-from sim.capture import STREAMS, Simulator, capture_workers, pipelined
-from sim.errors import DatasetError
+from sim import images, registration, seeds
+from sim.capture import Simulator, capture_workers, pipelined
+from sim.errors import DatasetError, SetupError
 from sim.fidelity import describe
 from sim.io import read_png, write_json, write_png, write_text
-from sim.setup import Setup, dump_setup
+from sim.setup import Setup, dump_setup, load_setup
 
 N_REF = 126
 """125 plain colours (0001 black … 0125 white) and the gray surface frame 0126."""
@@ -76,8 +76,8 @@ def projector_frames(spec: FrameSpec) -> dict[str, np.ndarray]:
         user = images.load_image_folder(spec.images_dir, spec.n_train + spec.n_test, spec.size)
         return {"ref": ref, "train": user[:spec.n_train], "test": user[spec.n_train:]}
     return {"ref": ref,
-            "train": images.projector_frames(spec.n_train, spec.size, spec.seed, stream=0),
-            "test": images.projector_frames(spec.n_test, spec.size, spec.seed, stream=1)}
+            "train": images.projector_frames(spec.n_train, spec.size, spec.seed, seeds.TRAIN_FRAMES),
+            "test": images.projector_frames(spec.n_test, spec.size, spec.seed, seeds.TEST_FRAMES)}
 
 
 def write_frames(root: Path, spec: FrameSpec) -> dict[str, np.ndarray]:
@@ -130,6 +130,16 @@ def _finish_capture(sim: Simulator, radiance: np.ndarray | None, raw: np.ndarray
     return seconds
 
 
+def _same_setup(setup_file: Path, setup: Setup) -> bool:
+    """True when ``setup_file`` exists and reads back to ``setup`` (whatever its formatting)."""
+    if not setup_file.exists():
+        return False
+    try:
+        return load_setup(setup_file) == setup
+    except SetupError:
+        return False
+
+
 def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None = None,
                 spp: int | None = None, progress: bool = True, overwrite: bool = False) -> Path:
     """Render one setup into ``root/<setup.name>`` (resuming an interrupted run).
@@ -157,9 +167,9 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
     """
     root = Path(root)
     out = root / setup.name
-    resolved = dump_setup(setup)
     setup_file = out / "setup.toml"
-    if setup_file.exists() and setup_file.read_text() != resolved and not overwrite:
+    same_setup = _same_setup(setup_file, setup)
+    if setup_file.exists() and not same_setup and not overwrite:
         raise DatasetError(f"{setup_file}: the folder holds captures of a different setup; "
                            "choose another --out or pass --overwrite")
     frames = write_frames(root, spec)
@@ -167,11 +177,11 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
     meta_file = out / "meta.json"
     if meta_file.exists():
         meta = json.loads(meta_file.read_text())
-        if setup_file.read_text() == resolved and meta.get("size") == list(spec.size) and all(
+        if same_setup and meta.get("size") == list(spec.size) and all(
                 meta.get("counts", {}).get(k, 0) >= n for k, n in counts.items()):
             return out
         meta_file.unlink()  # more captures asked for, or a different setup: no longer finished
-    write_text(setup_file, resolved)
+    write_text(setup_file, dump_setup(setup))
 
     todo = [(split, i) for split, stack in frames.items() for i in range(1, len(stack) + 1)
             if not all((out / "cam" / kind / split / image_name(i)).exists() for kind in ("raw", "warp"))]
@@ -186,11 +196,12 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         t0 = time.perf_counter()
         raw = read_png(raw_file) if raw_file.exists() else None  # written atomically: complete
         finish_seconds["png"] += time.perf_counter() - t0
-        return (sim.linear(frames[split][i - 1], STREAMS[split], i) if raw is None else None), raw
+        return (sim.linear(frames[split][i - 1], seeds.STREAMS[split], i) if raw is None else None), raw
 
     def finish(job: tuple[str, int], rendered) -> dict[str, float]:
         split, i = job
-        return _finish_capture(sim, *rendered, STREAMS[split], i, out / "cam" / "raw" / split / image_name(i),
+        return _finish_capture(sim, *rendered, seeds.STREAMS[split], i,
+                               out / "cam" / "raw" / split / image_name(i),
                                out / "cam" / "warp" / split / image_name(i))
 
     with tqdm(total=len(todo), desc=f"render {setup.name}", unit="capture", disable=not progress) as bar:
@@ -217,7 +228,7 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
                        "loaded_from_cache": r.loaded_from_cache} if r.fidelity == "transport" else None),
         "ambient_spp": setup.render.ambient_spp,
         "seeds": {"render": setup.render.seed, "frames": spec.seed,
-                  "streams": STREAMS},
+                  "streams": seeds.STREAMS},
         "size": list(spec.size),
         "camera_resolution": list(setup.camera.resolution),
         "counts": counts,

@@ -1,6 +1,6 @@
 """The fidelity ladder: ``path``, ``direct``, ``transport`` and the measured ``auto`` choice.
 
-*Model no more than a scene needs* (design.md §3). Every way procam produces a capture is a level:
+*Model no more than a scene needs*. Every way procam produces a capture is a level:
 
 - ``path``: Mitsuba path tracing to ``render.max_depth`` (inter-reflection);
 - ``direct``: Mitsuba direct light only (exact where no surface sees another: a plane);
@@ -24,9 +24,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sim import camera, images, surfaces, transport
+from sim import camera, images, seeds, surfaces, transport
 from sim.errors import SetupError
-from sim.render import Renderer, mitsuba_seed
+from sim.io import to_uint8
+from sim.render import Renderer
 from sim.setup import Setup
 
 LEVELS = ("path", "direct", "transport")
@@ -39,8 +40,8 @@ PROBE_CLASSES = ("smooth", "stripes1", "stripes2", "random", "natural")
 """Probe frames: low-frequency colour fields, 1- and 2-pixel black/white stripes, independent
 random pixels, and a generated dataset frame (:func:`probe_frame`)."""
 FLOOR_FRACTION = 1.0
-"""``auto`` accepts a level whose RMS error is at most this fraction of the camera's RMS noise (the
-issue's rule: below the camera's own noise floor). Added in quadrature such an error raises the
+"""``auto`` accepts a level whose RMS error is at most this fraction of the camera's RMS noise: an
+error below the camera's own noise floor. Added in quadrature such an error raises the
 total noise by at most sqrt(2) - 1 = 41 %; with ``transport`` it is the same in every capture."""
 AUTO_REFERENCE_SPP = 256
 """Samples per pixel of ``auto``'s path-traced reference (two renders of about half as many)."""
@@ -49,8 +50,6 @@ PROBE_WINDOW = 64
 so a window measures it at a fraction of the cost)."""
 DATASET_CAPTURES = 826
 """Captures of one dataset setup (126 + 500 + 200): the count ``auto`` amortises a calibration over."""
-_PROBE_STREAM, _REFERENCE_STREAM = 96, 97
-"""Seed streams of the probe renders (the splits use 0–3, calibration 98, the ambient image 99)."""
 
 
 def check_level(setup: Setup, level: str) -> None:
@@ -108,15 +107,22 @@ def probe_frame(kind: str, size: tuple[int, int], seed: int) -> np.ndarray:
     size : (int, int)
         (width, height) in pixels.
     seed : int
-        Seed of the random content.
+        Seed of the random content (the setup's ``render.seed``; see :mod:`sim.seeds`).
 
     Returns
     -------
     numpy.ndarray
         uint8 (height, width, 3), encoded projector input.
+
+    Raises
+    ------
+    ValueError
+        If ``kind`` is not a probe class.
     """
+    if kind not in PROBE_CLASSES:
+        raise ValueError(f"probe class {kind!r}: expected one of {', '.join(PROBE_CLASSES)}")
     w, h = size
-    rng = np.random.default_rng([seed, PROBE_CLASSES.index(kind) if kind in PROBE_CLASSES else 99])
+    rng = np.random.default_rng([seed, PROBE_CLASSES.index(kind)])
     if kind == "smooth":
         y, x = np.mgrid[0:h, 0:w] / max(w, h)
         out = np.full((h, w, 3), 0.5)
@@ -124,22 +130,14 @@ def probe_frame(kind: str, size: tuple[int, int], seed: int) -> np.ndarray:
             for _ in range(3):
                 fx, fy = rng.uniform(-2, 2, 2)
                 out[..., c] += 0.13 * np.sin(2 * np.pi * (fx * x + fy * y) + rng.uniform(0, 2 * np.pi))
-        return np.rint(255 * np.clip(out, 0, 1)).astype(np.uint8)
+        return to_uint8(out)
     if kind in ("stripes1", "stripes2"):
         width = int(kind[-1])
         on = (np.arange(w) // width) % 2 == 0
         return np.broadcast_to(np.where(on, 255, 0).astype(np.uint8)[None, :, None], (h, w, 3)).copy()
     if kind == "random":
         return rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
-    if kind == "natural":
-        return images.projector_frames(1, (w, h), seed, stream=7)[0]
-    raise ValueError(f"probe class {kind!r}: expected one of {', '.join(PROBE_CLASSES)}")
-
-
-def camera_signal(radiance: np.ndarray, cfg) -> np.ndarray:
-    """Noiseless linear sensor signal: radiance × exposure × white balance, clipped to [0, 1]."""
-    gain = np.float32(cfg.exposure) * np.asarray(cfg.white_balance, np.float32)
-    return np.clip(np.asarray(radiance, np.float32) * gain, 0.0, 1.0)
+    return images.projector_frames(1, (w, h), seed, seeds.PROBE_FRAMES)[0]  # natural
 
 
 def noise_floor(signal: np.ndarray, cfg) -> float:
@@ -151,7 +149,8 @@ def noise_floor(signal: np.ndarray, cfg) -> float:
     Parameters
     ----------
     signal : numpy.ndarray
-        Noiseless linear signal in [0, 1] (:func:`camera_signal`), any shape.
+        Noiseless linear signal in [0, 1] (:func:`sim.camera.sensor_signal` without noise), any
+        shape.
     cfg : CameraConfig
         Noise levels and response curve.
 
@@ -186,6 +185,33 @@ def unbiased_rmse(x: np.ndarray, ref_a: np.ndarray, ref_b: np.ndarray) -> float:
     ref = 0.5 * (ref_a + ref_b)
     mse = np.mean((x - ref) ** 2, dtype=np.float64) - np.mean((ref_a - ref_b) ** 2, dtype=np.float64) / 4
     return float(math.sqrt(max(float(mse), 0.0)))
+
+
+def psnr_from_rmse(rmse: float, peak: float = 1.0) -> float:
+    """Peak signal-to-noise ratio in dB of an RMS error: ``20 log10(peak / rmse)``.
+
+    Parameters
+    ----------
+    rmse : float
+        RMS error (>= 0), in the units of ``peak``.
+    peak : float
+        The largest value of the signal: 1 for the full well (linear) or the top code (encoded).
+
+    Returns
+    -------
+    float
+        dB; ``inf`` for an error of 0.
+
+    Examples
+    --------
+    >>> psnr_from_rmse(0.01)
+    40.0
+    >>> psnr_from_rmse(0.0)
+    inf
+    """
+    if rmse == 0:
+        return math.inf
+    return 20 * (math.log10(peak) - math.log10(rmse))
 
 
 def window_setup(setup: Setup, window: int | None) -> Setup:
@@ -265,15 +291,17 @@ class Probe:
         for i, (k, frame) in enumerate(self.frames.items()):
             t0 = time.perf_counter()
             irr = self._emit(frame)
-            halves = [ref.projector_radiance(irr, mitsuba_seed(setup.render.seed, _REFERENCE_STREAM,
-                                                               2 * i + j)) for j in range(2)]
+            halves = [ref.projector_radiance(irr, seeds.mitsuba_seed(setup.render.seed, seeds.REFERENCE,
+                                                                     2 * i + j)) for j in range(2)]
             seconds.append(time.perf_counter() - t0)
-            self._reference[k] = [camera_signal(r + self._ambient, cfg) for r in halves]
+            self._reference[k] = [camera.sensor_signal(r + self._ambient, cfg.exposure, cfg.white_balance)
+                                  for r in halves]
             mean = 0.5 * (halves[0] + halves[1]) + self._ambient
-            self.floors[k] = noise_floor(camera_signal(mean, cfg), cfg)
-            rng = np.random.default_rng([setup.render.seed, _REFERENCE_STREAM, i])
+            signal = camera.sensor_signal(mean, cfg.exposure, cfg.white_balance)
+            self.floors[k] = noise_floor(signal, cfg)
+            rng = seeds.noise_rng(setup.render.seed, seeds.REFERENCE, i)
             noisy = camera.capture(mean, cfg, rng).astype(np.float64) / 255
-            clean = camera.encode(camera_signal(mean, cfg).astype(np.float64), cfg.response)
+            clean = camera.encode(signal.astype(np.float64), cfg.response)
             self.floors_encoded[k] = float(np.sqrt(np.mean((noisy - clean) ** 2)))
         self.reference_seconds = float(np.mean(seconds[1:] or seconds))  # the first one compiles
 
@@ -300,9 +328,9 @@ class Probe:
         for i, (k, frame) in enumerate(self.frames.items()):
             t0 = time.perf_counter()
             rad = renderer.projector_radiance(self._emit(frame),
-                                              mitsuba_seed(self.setup.render.seed, _PROBE_STREAM, i))
+                                              seeds.mitsuba_seed(self.setup.render.seed, seeds.PROBE, i))
             seconds = time.perf_counter() - t0
-            sig = camera_signal(rad + self._ambient, cfg)
+            sig = camera.sensor_signal(rad + self._ambient, cfg.exposure, cfg.white_balance)
             a, b = self._reference[k]
             enc = [camera.encode(s.astype(np.float64), cfg.response) for s in (sig, a, b)]
             out[k] = {"rmse": unbiased_rmse(sig, a, b), "rmse_encoded": unbiased_rmse(*enc),

@@ -11,6 +11,8 @@ import math
 import cv2
 import numpy as np
 
+from sim.io import to_float
+
 _SUPERSAMPLING = 15
 """Sub-samples per pixel side for the disk coverage (odd: one sub-sample sits on the centre)."""
 
@@ -58,7 +60,7 @@ def emitted_irradiance(frame: np.ndarray, gamma: float, black_level: float,
     if mix.shape != (3, 3):
         raise ValueError(f"projector mixing: expected a 3x3 matrix, got shape {mix.shape}")
     if frame.dtype == np.uint8:
-        x = frame.astype(np.float32) / np.float32(255)
+        x = to_float(frame)
     else:
         x = frame.astype(np.float32)
         if not (x.min() >= 0.0 and x.max() <= 1.0):  # also rejects NaN

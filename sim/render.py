@@ -1,4 +1,4 @@
-"""Linear camera radiance of a setup for any projector frame (design.md §3).
+"""Linear camera radiance of a setup for any projector frame.
 
 The scene is built once; each projector frame is swapped into the projector's texture through
 ``mi.traverse`` (no reload, no recompilation). The ambient-only image is rendered once per setup at
@@ -9,17 +9,12 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from sim import geometry, projector, scene, surfaces
+from sim import geometry, projector, scene, seeds, surfaces
 from sim.io import to_float
 from sim.setup import Setup
 from sim.variant import use_variant
 
 _TEXTURE = f"{scene.PROJECTOR_KEY}.irradiance.data"
-
-
-def mitsuba_seed(seed: int, stream: int, index: int) -> int:
-    """Sampler seed (uint32) of one capture: distinct per (setup seed, stream, frame index)."""
-    return (seed * 1_000_003 + stream * 100_003 + index) % 2**32
 
 
 def throw_distance(setup: Setup) -> float:
@@ -112,8 +107,8 @@ class Renderer:
                 use_variant(self.variant)
                 sc = mi.load_dict(scene.ambient_scene(self.setup, self.albedo, self.fidelity,
                                                       self.setup.render.ambient_spp))
-                self._ambient = np.array(mi.render(sc, seed=mitsuba_seed(self.setup.render.seed, 99, 0)),
-                                         dtype=np.float32)
+                seed = seeds.mitsuba_seed(self.setup.render.seed, seeds.AMBIENT, 0)
+                self._ambient = np.array(mi.render(sc, seed=seed), dtype=np.float32)
         return self._ambient
 
     def radiance(self, frame: np.ndarray, seed: int = 0) -> np.ndarray:

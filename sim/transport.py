@@ -1,4 +1,4 @@
-"""The ``transport`` fidelity level: a per-setup light-transport operator (design.md §3).
+"""The ``transport`` fidelity level: a per-setup light-transport operator.
 
 Light transport is linear in the projector irradiance, so a capture's radiance is ``T p + b``
 for the setup's own sparse matrix ``T`` (camera pixel × projector pixel, per colour channel) and
@@ -38,14 +38,12 @@ import numpy as np
 import scipy.sparse
 import torch
 
-from sim import geometry, surfaces
+from sim import geometry, seeds, surfaces
 from sim.errors import ProcamError, SetupError
 from sim.io import atomic_write
-from sim.render import Renderer, mitsuba_seed
+from sim.render import Renderer
 from sim.setup import Setup, dump_setup
 
-CALIBRATION_STREAM = 98
-"""Seed stream of the calibration renders (the dataset splits use 0–3, the ambient image 99)."""
 MAX_SPACING = 12
 """Largest dot spacing (``MAX_SPACING²`` calibration renders) before this level declines."""
 APERTURE_SAMPLES = 16
@@ -339,7 +337,7 @@ class TransportOperator:
                 'use "direct" or "auto"')
         wp, hp = setup.projector.resolution
         wc, hc = setup.camera.resolution
-        seed = mitsuba_seed(setup.render.seed, CALIBRATION_STREAM, 0)
+        seed = seeds.mitsuba_seed(setup.render.seed, seeds.CALIBRATION, 0)
         cam_idx = np.flatnonzero(seen)
         lo_s, hi_s = lo.reshape(-1, 2)[cam_idx], hi.reshape(-1, 2)[cam_idx]
         rows, cols, values = [], [], []
@@ -356,7 +354,7 @@ class TransportOperator:
         op = cls(np.concatenate(rows), np.concatenate(cols), np.concatenate(values), (wc, hc),
                  (wp, hp), renderer.ambient_radiance(),
                  CalibrationInfo(renderer.spp, seed, s, 0.0, 0.0, renderer.variant))
-        test = np.random.default_rng(0).random((hp, wp, 3), dtype=np.float32)
+        test = np.random.default_rng(seeds.TRANSPORT_CHECK).random((hp, wp, 3), dtype=np.float32)
         want = renderer.projector_radiance(test, seed)
         err = float(np.abs(op.project_image(test) - want).max() / max(float(want.max()), 1e-12))
         if err > VERIFY_TOLERANCE:

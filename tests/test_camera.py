@@ -113,6 +113,9 @@ def test_noise_free_path_is_exact():
     wb = np.array([1.1, 1.0, 0.9], np.float32)
     s = camera.sensor_signal(rad, 0.8, wb, 0.0, 0.0, np.random.default_rng(0))
     np.testing.assert_array_equal(s, np.clip(rad * np.float32(0.8) * wb, 0, 1))
+    np.testing.assert_array_equal(camera.sensor_signal(rad, 0.8, wb), s)  # the noiseless signal
+    with pytest.raises(ValueError, match="random generator"):
+        camera.sensor_signal(rad, 0.8, wb, read_noise=1e-3)
     out = camera.capture(np.full((2, 2, 3), 0.36, np.float32),
                          cam(shot_noise=0.0, read_noise=0.0, response="gamma:2"),
                          np.random.default_rng(0))

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -87,6 +88,20 @@ def test_resume_rewrites_nothing_and_finishes_interrupted(rendered):
     after = _files(data)
     changed = {p for p in before if p in after and after[p] != before[p]}
     assert changed <= {victim, data / "tiny" / "meta.json"}  # nothing else rewritten
+
+
+def test_resume_compares_setups_not_their_formatting(rendered, tmp_path, capsys):
+    """A setup.toml written differently (by hand, or by an older procam) that reads back to the
+    same setup resumes; one of another setup is refused."""
+    data = tmp_path / "data"
+    shutil.copytree(rendered / "data", data)
+    (data / "tiny" / "setup.toml").write_text(SETUP.format(seed=0))
+    before = _files(data)
+    assert main(["render", str(rendered / "tiny.toml"), "--out", str(data), *ARGS]) == 0
+    assert _files(data) == before
+    assert main(["render", str(_setup_file(tmp_path, seed=1)), "--out", str(data), *ARGS]) == 2
+    assert "different setup" in capsys.readouterr().err
+    assert _files(data) == before
 
 
 def test_same_seed_same_bytes_other_seed_other_noise(rendered, tmp_path):

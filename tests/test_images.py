@@ -12,10 +12,12 @@ from sim.errors import DatasetError, SetupError
 from sim.io import write_png
 
 
-def test_srgb_decode_matches_colour_science():
+def test_srgb_decode_is_colour_sciences_to_float32_rounding():
     colour = pytest.importorskip("colour")
-    x = np.linspace(0, 1, 1001)
-    np.testing.assert_allclose(images.srgb_decode(x), colour.cctf_decoding(x, "sRGB"), atol=1e-6)
+    x = np.linspace(0, 1, 2**16 + 1)
+    got = images.srgb_decode(x)
+    assert got.dtype == np.float32
+    np.testing.assert_allclose(got, colour.cctf_decoding(x.astype(np.float32), "sRGB"), rtol=5e-7, atol=0)
 
 
 def test_plain_colours_order_and_values():

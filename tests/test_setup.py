@@ -14,8 +14,8 @@ from sim import images
 from sim.errors import SetupError
 from sim.io import write_png
 from sim.setup import (AmbientConfig, CameraConfig, ProjectorConfig, RenderConfig, Setup,
-                       SurfaceConfig, dump_setup, load_setup, load_suite, parse_setup, scene_path,
-                       temperature_rgb)
+                       SurfaceConfig, dump_setup, load_setup, load_setups, load_suite, parse_setup,
+                       scene_path, temperature_rgb)
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 SHIPPED = ("default", "white", "corner", "defocus")
@@ -129,8 +129,9 @@ def test_round_trip_of_texture_file_and_odd_strings(tmp_path):
     s = load_setup(tmp_path / "s.toml")
     assert s.surface.texture == str((tmp_path / "tex" / "my wall.png").resolve())
     assert parse_setup(tomllib.loads(dump_setup(s)), base_dir="/") == s
-    odd = dataclasses.replace(s, surface=dataclasses.replace(s.surface, texture='a "quoted"\\path\t.png'))
-    assert tomllib.loads(dump_setup(odd))["surface"]["texture"] == 'a "quoted"\\path\t.png'
+    odd_name = 'a "quoted"\\path\t\n\u00e9\x7f.png'
+    odd = dataclasses.replace(s, surface=dataclasses.replace(s.surface, texture=odd_name))
+    assert tomllib.loads(dump_setup(odd))["surface"]["texture"] == odd_name
 
 
 # ---------------------------------------------------------------------------------- defaults
@@ -302,6 +303,22 @@ def test_bad_suite_names_suite_file_and_entry(tmp_path, text, parts):
     assert msg.startswith(f"{path}: ")
     missing = [p for p in parts if p not in msg]
     assert not missing, f"{msg!r} lacks {missing}"
+
+
+def test_load_setups_takes_a_setup_file_a_suite_file_or_a_shipped_name(tmp_path):
+    assert load_setups("default") == [load_setup(scene_path("default"))]
+    assert load_setups("suite.toml") == load_suite(scene_path("suite"))
+    one = tmp_path / "one.toml"
+    one.write_text('name = "one"\n[camera]\nfov = 38.0\n')
+    assert load_setups(str(one)) == [load_setup(one)]
+    suite = _suite(tmp_path, '[[setup]]\nname = "a"\n[[setup]]\nname = "b"\n')
+    assert [s.name for s in load_setups(str(suite))] == ["a", "b"]
+    with pytest.raises(SetupError, match="nowhere: no such setup file, and not a shipped scene; shipped: "
+                                         ".*default"):
+        load_setups("nowhere")
+    (tmp_path / "broken.toml").write_text("name = \n")
+    with pytest.raises(SetupError, match="broken.toml: not valid TOML"):
+        load_setups(str(tmp_path / "broken.toml"))
 
 
 def test_suite_base_errors_name_the_base_file(tmp_path):

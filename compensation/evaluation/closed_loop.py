@@ -16,13 +16,12 @@ import torch
 
 from compensation.data import SetupData
 from compensation.evaluation.metrics import evaluate, masked_scores
+from sim import seeds
 from sim.capture import Simulator
 from sim.errors import DatasetError
 from sim.io import to_float, to_uint8
 from sim.setup import load_setup
 
-CLOSED_LOOP_STREAM = 16
-"""First seed stream of closed-loop captures (the dataset uses 0–3); refinement uses the next."""
 REACH_TOLERANCE = 2 / 255
 """Slack (encoded units) for the reachable test: two 8-bit levels of camera noise."""
 
@@ -137,7 +136,7 @@ def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor |
     t0 = time.perf_counter()
     x_star = method.predict(y, data.surface, batch_size=batch_size)
     infer_ms = 1000 * (time.perf_counter() - t0) / y.shape[0]
-    captured = project(sim, x_star, CLOSED_LOOP_STREAM)
+    captured = project(sim, x_star, seeds.CLOSED_LOOP)
     scores = {**closed_loop_scores(captured, y, reachable_mask(data, y), batch_size),
               "projections": int(y.shape[0]), "infer_ms_per_frame": round(infer_ms, 3)}
     return (scores, captured) if return_captures else scores
@@ -165,7 +164,7 @@ def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor 
     x = y.clone()
     rows = []
     for k in range(max(report) + 1):
-        captured = project(sim, x, CLOSED_LOOP_STREAM + 1 + k)
+        captured = project(sim, x, seeds.CLOSED_LOOP + 1 + k)
         if k in report:
             rows.append({"iterations": k, **closed_loop_scores(captured, y, mask),
                          "projections": int(y.shape[0]) * (k + 1)})

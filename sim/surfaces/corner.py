@@ -4,11 +4,9 @@ from __future__ import annotations
 import numpy as np
 
 from sim.geometry import Rect
-from sim.surfaces import register
 from sim.surfaces.base import RectSurface
 
 
-@register
 class Corner(RectSurface):
     """Two wings, each ``config.size`` (width, height), meeting at a vertical edge through the
     origin and opening towards +z by ``config.corner_angle`` degrees (a room corner seen from

@@ -4,11 +4,9 @@ from __future__ import annotations
 import numpy as np
 
 from sim.geometry import Rect
-from sim.surfaces import register
 from sim.surfaces.base import RectSurface
 
 
-@register
 class Plane(RectSurface):
     """One rectangle of ``config.size`` (width, height) in the z = 0 plane, centred at the origin,
     normal +z, up +y; the albedo texture covers it once.

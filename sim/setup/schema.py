@@ -1,0 +1,203 @@
+"""The setup schema: frozen dataclasses describing one projector-camera setup, field by field.
+
+World: metres and degrees; the (planar) surface lies in the x-y plane at z = 0, centred at the
+origin, normal +z, up +y; projector and camera stand at z > 0 looking towards -z. The defaults
+here are the defaults of a setup file (:mod:`sim.setup.validation` fills every missing key from
+them).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import MappingProxyType
+
+from sim import surfaces
+
+NAME_PATTERN = "[A-Za-z0-9_-]+"
+"""Setup names (used as dataset folder names)."""
+TEMPERATURE_RANGE = (1000.0, 25000.0)
+"""Kelvin range accepted for ``ambient.temperature``."""
+
+
+@dataclass(frozen=True)
+class SurfaceConfig:
+    """The projection surface (see :mod:`sim.surfaces` for its exact shape)."""
+
+    geometry: str = "plane"
+    """``"plane"`` (one rectangle at z = 0) or ``"corner"`` (two planes meeting at a vertical edge)."""
+    size: tuple[float, float] = (1.2, 1.0)
+    """Metres (width, height) of the plane; for a corner, of each wing."""
+    corner_angle: float = 90.0
+    """Degrees, opening angle of a corner, in (30, 180); unused for a plane."""
+    texture: str = "brick"
+    """``"uniform"``, a generator kind of :data:`sim.images.SURFACE_KINDS`, or the absolute path of
+    an image file (a relative path in a setup file is relative to that file)."""
+    texture_seed: int = 0
+    """Seed (>= 0) of the texture generator (see :mod:`sim.seeds`)."""
+    texture_resolution: int = 512
+    """Pixels along the longest side of the albedo texture, 16..4096."""
+    albedo_scale: float = 0.8
+    """Linear albedo multiplier, in (0, 1]."""
+    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Linear RGB albedo multiplier per channel, each in [0, 1]."""
+    material: str = "diffuse"
+    """``"diffuse"`` or ``"roughplastic"`` (semi-gloss)."""
+    roughness: float = 0.1
+    """GGX alpha of the roughplastic material, in (0, 1]."""
+
+
+@dataclass(frozen=True)
+class ProjectorConfig:
+    """The projector: response, primaries mixing, pose and optics."""
+
+    resolution: tuple[int, int] = (256, 256)
+    """Pixels (width, height), each 8..4096."""
+    fov: float = 30.0
+    """Degrees, horizontal field of view, in (1, 120)."""
+    position: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    """Metres, world position of the lens (z > 0)."""
+    look_at: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Metres, a world point on the optical axis (towards -z)."""
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    """Direction of the image's up (not parallel to the optical axis)."""
+    brightness: float = 1.0
+    """Emitter scale (> 0): irradiance 1 at 1 m head-on gives an outgoing radiance equal to the albedo."""
+    gamma: float = 2.2
+    """Projector response exponent (encoded input -> linear output), in (0.1, 10)."""
+    black_level: float = 0.005
+    """Fraction of full output emitted for input 0, in [0, 0.2)."""
+    mixing: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    """3x3 primaries mixing matrix (rows: camera channel, columns: projector primary), entries >= 0."""
+    aperture: float = 0.0
+    """Metres, lens aperture diameter for defocus (>= 0); 0 is a pinhole (sharp)."""
+    focus_distance: float = 1.0
+    """Metres (> 0), distance at which the projector is in focus."""
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """The camera: pose, optics and sensor (exposure, noise, response, bit depth)."""
+
+    resolution: tuple[int, int] = (256, 256)
+    """Pixels (width, height), each 8..4096."""
+    fov: float = 40.0
+    """Degrees, horizontal field of view, in (1, 120)."""
+    position: tuple[float, float, float] = (0.25, 0.0, 1.0)
+    """Metres, world position (z > 0)."""
+    look_at: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Metres, a world point on the optical axis (towards -z)."""
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    """Direction of the image's up (not parallel to the optical axis)."""
+    aperture_radius: float = 0.0
+    """Metres, thin-lens aperture radius (>= 0); 0 is a pinhole."""
+    focus_distance: float = 1.03
+    """Metres (> 0), in-focus distance (used when ``aperture_radius > 0``)."""
+    exposure: float = 1.0
+    """Multiplier (> 0) from linear scene radiance to sensor signal; signal 1 is the full well."""
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Per-channel linear gains, each > 0."""
+    response: str = "sRGB"
+    """Camera response curve, a name accepted by :func:`sim.camera.check_response`."""
+    shot_noise: float = 2e-4
+    """Poisson gain a (>= 0): a signal s in [0, 1] has variance a * s (s / a electrons)."""
+    read_noise: float = 2e-3
+    """Gaussian read-noise sigma (>= 0), in linear signal units."""
+    bit_depth: int = 8
+    """Bits per channel of the captures; must be 8."""
+
+
+@dataclass(frozen=True)
+class AmbientConfig:
+    """Constant ambient light, given as a radiance or as a colour temperature and intensity."""
+
+    radiance: tuple[float, float, float] = (0.02, 0.02, 0.02)
+    """Linear RGB radiance of the constant emitter, each >= 0 (resolved from the temperature
+    when one is given)."""
+    temperature: float | None = None
+    """Kelvin (1000..25000) the radiance came from, or None when given directly."""
+    intensity: float | None = None
+    """Luminance (>= 0) the temperature's colour was scaled to, or None when given directly."""
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Light transport and sampling."""
+
+    fidelity: str = "auto"
+    """``"auto"`` (measured: the cheapest level, and spp, whose error is below the camera's noise;
+    see :mod:`sim.fidelity`), ``"path"``, ``"direct"`` or ``"transport"`` (a light-transport
+    operator calibrated from direct renders at ``spp``)."""
+    spp: int = 16
+    """Samples per pixel of the projector contribution, 1..65536."""
+    ambient_spp: int = 256
+    """Samples per pixel of the ambient-only image (rendered once per setup), 1..65536."""
+    max_depth: int = 3
+    """Path depth for path tracing (>= 2; a corner needs >= 3 for its inter-reflection)."""
+    seed: int = 0
+    """Seed base (>= 0) of the Mitsuba sampler and of the camera noise (see :mod:`sim.seeds`)."""
+
+
+@dataclass(frozen=True)
+class Setup:
+    """One validated projector-camera setup."""
+
+    name: str
+    """Setup name, matching :data:`NAME_PATTERN`; the dataset folder name."""
+    surface: SurfaceConfig = SurfaceConfig()
+    """The projection surface."""
+    projector: ProjectorConfig = ProjectorConfig()
+    """The projector."""
+    camera: CameraConfig = CameraConfig()
+    """The camera."""
+    ambient: AmbientConfig = AmbientConfig()
+    """The ambient light."""
+    render: RenderConfig = RenderConfig()
+    """Rendering settings."""
+
+    @property
+    def is_planar_diffuse(self) -> bool:
+        """True for a diffuse plane (direct light alone is exact)."""
+        return surfaces.get_surface(self.surface.geometry).planar and self.surface.material == "diffuse"
+
+
+SECTIONS = MappingProxyType({
+    "surface": SurfaceConfig, "projector": ProjectorConfig, "camera": CameraConfig,
+    "ambient": AmbientConfig, "render": RenderConfig})
+"""Section name -> its dataclass, in the order of the fields of :class:`Setup` and of a written file."""
+
+
+def temperature_rgb(kelvin: float) -> tuple[float, float, float]:
+    """Linear sRGB colour of a light of a given colour temperature, with luminance Y = 1.
+
+    Chromaticity from the CIE daylight locus (:func:`colour.temperature.CCT_to_xy_CIE_D`) at
+    4000 K and above, from a Planckian (black body) spectrum below; converted to linear sRGB
+    (D65 white, no chromatic adaptation, so 6504 K is near (1, 1, 1)) and negative channels of
+    out-of-gamut colours clipped to 0.
+
+    Parameters
+    ----------
+    kelvin : float
+        Colour temperature in kelvin, 1000..25000.
+
+    Returns
+    -------
+    tuple of float
+        Linear (R, G, B).
+
+    Raises
+    ------
+    ValueError
+        If ``kelvin`` is outside 1000..25000.
+    """
+    import colour
+
+    lo, hi = TEMPERATURE_RANGE
+    if not lo <= kelvin <= hi:
+        raise ValueError(f"colour temperature {kelvin!r} K: expected {lo:g}..{hi:g} K")
+    if kelvin >= 4000:
+        xyz = colour.xy_to_XYZ(colour.temperature.CCT_to_xy_CIE_D(kelvin))
+    else:
+        # CIE 1931 2-degree observer (the default), on colour's default 360-780 nm grid
+        xyz = colour.sd_to_XYZ(colour.sd_blackbody(kelvin, colour.SPECTRAL_SHAPE_DEFAULT))
+        xyz = xyz / xyz[1]
+    rgb = colour.XYZ_to_RGB(xyz, "sRGB")
+    return tuple(max(float(c), 0.0) for c in rgb)

@@ -1,0 +1,165 @@
+"""Suites of setups, the shipped scenes, and what a command line names: a file, a suite or a scene.
+
+A suite file holds ``base = "default.toml"`` (relative to the suite file) and ``[[setup]]`` tables,
+each a ``name`` plus partial overrides deep-merged onto the base (:func:`load_suite`). The shipped
+setup and suite files are the package ``procam_scenes`` (the ``scenes/`` folder), found by name
+with :func:`scene_path`.
+"""
+from __future__ import annotations
+
+import copy
+import importlib.resources
+import re
+from collections.abc import Mapping
+from pathlib import Path
+
+from sim.errors import SetupError
+from sim.setup.schema import NAME_PATTERN, Setup
+from sim.setup.toml import read_toml
+from sim.setup.validation import parse_setup, shown
+
+
+def _merge(base: Mapping, override: Mapping) -> dict:
+    """Deep merge of ``override`` onto ``base`` (tables recursively, other values replaced).
+
+    The two forms of the ambient light exclude each other: an override giving ``radiance`` drops
+    the base's ``temperature``/``intensity`` and one giving ``temperature`` drops its ``radiance``.
+    """
+    out = copy.deepcopy(dict(base))
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            merged = dict(out[key])
+            if key == "ambient":
+                if "radiance" in value:
+                    merged.pop("temperature", None)
+                    merged.pop("intensity", None)
+                if "temperature" in value:
+                    merged.pop("radiance", None)
+            out[key] = _merge(merged, value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def load_suite(path: Path | str) -> list[Setup]:
+    """Read a suite file: ``base`` (a setup file, relative to the suite) and ``[[setup]]`` tables.
+
+    Each ``[[setup]]`` table holds a ``name`` and partial overrides that are deep-merged onto the
+    base file's mapping (see :func:`_merge` for the ambient light) and validated; errors name the
+    suite file and the key as ``setup[i].section.key`` (i from 0). Relative texture paths are
+    relative to the file that gives them.
+
+    Parameters
+    ----------
+    path : Path or str
+        The suite file.
+
+    Returns
+    -------
+    list of Setup
+        In file order.
+
+    Raises
+    ------
+    SetupError
+        If a file cannot be read, a key or value is invalid, or two setups share a name.
+    """
+    path = Path(path)
+    return _suite(read_toml(path), path)
+
+
+def _suite(suite: Mapping, path: Path) -> list[Setup]:
+    """The setups of a suite file's mapping (see :func:`load_suite`)."""
+    source = str(path)
+    for key in suite:
+        if key not in ("base", "setup"):
+            raise SetupError(f"{source}: {key}: unknown key; valid keys of a suite: base, setup")
+    base_data: dict = {}
+    if "base" in suite:
+        if not isinstance(suite["base"], str):
+            raise SetupError(f"{source}: base = {shown(suite['base'])}: expected the path of a setup file")
+        base_path = path.parent / suite["base"]
+        base_data = read_toml(base_path)
+        base = parse_setup(base_data, str(base_path), base_path.parent)
+        if "texture" in base_data.get("surface", {}):
+            base_data["surface"]["texture"] = base.surface.texture  # resolved against the base's folder
+    entries = suite.get("setup")
+    if not isinstance(entries, list) or not entries or not all(isinstance(e, Mapping) for e in entries):
+        raise SetupError(f"{source}: setup: expected one or more [[setup]] tables")
+    setups, seen = [], {}
+    for i, entry in enumerate(entries):
+        prefix = f"setup[{i}]."
+        if "name" not in entry:
+            raise SetupError(f"{source}: {prefix}name: missing; expected a string matching {NAME_PATTERN}")
+        setup = parse_setup(_merge(base_data, entry), source, path.parent, prefix)
+        if setup.name in seen:
+            raise SetupError(f'{source}: {prefix}name = "{setup.name}": expected a unique name; '
+                             f"setup[{seen[setup.name]}] has it too")
+        seen[setup.name] = i
+        setups.append(setup)
+    return setups
+
+
+def _shipped_dir():
+    """The folder of the shipped setup files (package ``procam_scenes``)."""
+    try:
+        return importlib.resources.files("procam_scenes")
+    except NotADirectoryError:
+        # setuptools' editable installs add a non-folder placeholder to the namespace package's
+        # path, which importlib.resources of Python 3.11 rejects: take the real folder.
+        import procam_scenes
+
+        return next(Path(p) for p in procam_scenes.__path__ if Path(p).is_dir())
+
+
+def scene_path(name: str) -> Path:
+    """Path of a shipped setup or suite file by name.
+
+    Parameters
+    ----------
+    name : str
+        ``"default"``, ``"white"``, ``"corner"``, ``"defocus"``, ``"suite"`` (with or without
+        ``.toml``).
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    SetupError
+        If no shipped file has that name (the message lists the shipped names).
+    """
+    folder = _shipped_dir()
+    stem = name[:-5] if name.endswith(".toml") else name
+    candidate = folder / f"{stem}.toml"
+    if re.fullmatch(NAME_PATTERN, stem) and candidate.is_file():
+        return Path(str(candidate))
+    shipped = sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+    raise SetupError(f"{name}: no such setup file, and not a shipped scene; shipped: {', '.join(shipped)}")
+
+
+def load_setups(spec: str) -> list[Setup]:
+    """The setups a command line names: a setup file, a suite file or a shipped scene name.
+
+    Parameters
+    ----------
+    spec : str
+        A path to an existing setup or suite file (a suite is a file with ``[[setup]]`` tables),
+        else the name of a shipped one (:func:`scene_path`).
+
+    Returns
+    -------
+    list of Setup
+        One setup for a setup file, the suite's setups in file order for a suite.
+
+    Raises
+    ------
+    SetupError
+        If the file cannot be read or a setup in it is invalid, or no shipped file has that name.
+    """
+    path = Path(spec)
+    if not path.exists():
+        path = scene_path(spec)
+    data = read_toml(path)
+    return _suite(data, path) if "setup" in data else [parse_setup(data, str(path), path.parent)]
