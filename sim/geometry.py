@@ -4,8 +4,10 @@ Conventions match Mitsuba 3: ``look_at`` gives a frame whose local +x is ``cross
 image's *left*), +y the image's up and +z the viewing direction. A pinhole with horizontal field of
 view ``fov`` maps local direction (x, y, z) to normalised image coordinates
 ``u = 0.5 - 0.5 x / (z t)`` and ``v = 0.5 - 0.5 y a / (z t)`` with ``t = tan(fov / 2)`` and aspect
-``a = width / height``; pixel (column, row) = (u W, v H), row 0 at the top. Mitsuba's projector
-emitter uses the same mapping for its irradiance texture.
+``a = width / height`` of the device's own resolution; pixel (column, row) = (u W, v H), row 0 at
+the top. Mitsuba's projector emitter uses the same mapping for its irradiance texture. A pinhole
+resampled to another pixel grid (the canonical view of a projector) keeps the device's aspect:
+its pixels are then not square.
 
 All lengths are in metres, angles in degrees.
 """
@@ -27,7 +29,10 @@ class Pinhole:
     fov : float
         Horizontal field of view (degrees).
     width, height : int
-        Image size in pixels.
+        Pixel grid size in pixels.
+    aspect : float or None
+        Width / height of the image area (the field of view's shape); None: ``width / height``
+        (square pixels).
     """
 
     position: np.ndarray
@@ -36,14 +41,17 @@ class Pinhole:
     fov: float
     width: int
     height: int
+    aspect: float | None = None
 
     @classmethod
     def from_config(cls, cfg, resolution: tuple[int, int] | None = None) -> "Pinhole":
         """Build from a projector or camera config (``position``, ``look_at``, ``up``, ``fov``,
-        ``resolution``); ``resolution`` (width, height) overrides the config's."""
-        w, h = resolution if resolution is not None else cfg.resolution
+        ``resolution``). ``resolution`` (width, height) resamples the same image area on another
+        pixel grid: the field of view keeps the aspect of the config's resolution."""
+        cw, ch = cfg.resolution
+        w, h = resolution if resolution is not None else (cw, ch)
         return cls(np.asarray(cfg.position, float), np.asarray(cfg.look_at, float),
-                   np.asarray(cfg.up, float), float(cfg.fov), int(w), int(h))
+                   np.asarray(cfg.up, float), float(cfg.fov), int(w), int(h), float(cw) / float(ch))
 
     def frame(self) -> np.ndarray:
         """3×3 matrix whose columns are the local x (left), y (up) and z (forward) axes."""
@@ -57,12 +65,17 @@ class Pinhole:
     def tan_half(self) -> float:
         return float(np.tan(np.radians(self.fov) / 2))
 
+    @property
+    def image_aspect(self) -> float:
+        """Width / height of the image area (:attr:`aspect`, or of the pixel grid)."""
+        return float(self.aspect) if self.aspect is not None else self.width / self.height
+
     def pixel_rays(self) -> np.ndarray:
         """Unit world directions through every pixel centre, shape (height, width, 3)."""
         u = (np.arange(self.width) + 0.5) / self.width
         v = (np.arange(self.height) + 0.5) / self.height
         uu, vv = np.meshgrid(u, v)
-        t, a = self.tan_half, self.width / self.height
+        t, a = self.tan_half, self.image_aspect
         local = np.stack([-(2 * uu - 1) * t, -(2 * vv - 1) * t / a, np.ones_like(uu)], axis=-1)
         d = local @ self.frame().T
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
@@ -80,7 +93,7 @@ class Pinhole:
         local = (points - self.position) @ self.frame()
         z = local[..., 2]
         safe = np.where(z > 1e-9, z, 1e-9)
-        t, a = self.tan_half, self.width / self.height
+        t, a = self.tan_half, self.image_aspect
         u = 0.5 - 0.5 * local[..., 0] / (safe * t)
         v = 0.5 - 0.5 * local[..., 1] * a / (safe * t)
         return np.stack([u * self.width, v * self.height], axis=-1), z > 1e-9

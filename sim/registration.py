@@ -1,6 +1,9 @@
 """Camera → canonical projector view (design.md §4).
 
-The canonical view is the projector's own pixel grid at the dataset's size. Because the geometry
+The canonical view is the projector's own image resampled to the dataset's size: canonical pixel
+(column, row) of a W × H view shows the projector's image at ((column + 0.5) / W, (row + 0.5) / H)
+of its width and height, whatever the projector's resolution (its scaler stretches a canonical
+frame to fill its panel, :meth:`sim.render.Renderer.emit`). Because the geometry
 is known exactly, every canonical pixel's projector ray is intersected with the surface and the hit
 point projected into the camera (:func:`exact_map`): dense, exact for non-planar surfaces too, with
 a mask of pixels the camera cannot see. For planar setups :func:`estimate_homography` also
@@ -44,7 +47,8 @@ def exact_map(setup: Setup, size: tuple[int, int]) -> WarpMap:
     setup : Setup
         The setup (projector and camera poses, surface geometry).
     size : (int, int)
-        Canonical (width, height) in pixels.
+        Canonical (width, height) in pixels. The projector's image area keeps the aspect of its
+        own resolution: when the two aspects differ, canonical pixels are not square.
     """
     surface = surfaces.surface_for(setup.surface)
     proj = geometry.Pinhole.from_config(setup.projector, size)

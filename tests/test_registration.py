@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from conftest import tiny_setup
 from sim import geometry, registration
@@ -11,15 +12,21 @@ from sim.capture import Simulator
 SIZE = (64, 64)
 
 
-def _beside():
+def _beside(projector=(64, 64)):
     """Camera 0.25 m beside the projector, 128² so the projection covers many camera pixels."""
     return tiny_setup(camera={"position": [0.25, 0.0, 1.0], "resolution": [128, 128]},
+                      projector={"resolution": list(projector)},
                       ambient={"radiance": [0.01, 0.01, 0.01]})
 
 
-def test_checkerboard_warped_lines_up_within_one_pixel():
-    sim = Simulator(_beside(), SIZE)
-    frame, _ = registration.checkerboard(SIZE)
+# (canonical size, projector resolution), both (width, height): a canonical view of another aspect
+# than the projector's is the projector's image stretched to it (canonical pixels not square)
+@pytest.mark.parametrize("size, projector", [(SIZE, (64, 64)), ((64, 48), (64, 64)), ((48, 64), (64, 64)),
+                                             (SIZE, (64, 48))])
+def test_checkerboard_warped_lines_up_within_one_pixel(size, projector):
+    sim = Simulator(_beside(projector), size)
+    frame, _ = registration.checkerboard(size)
+    assert frame.shape == (size[1], size[0], 3) and sim.warp_map.mask.shape == (size[1], size[0])
     warped = sim.capture(frame[None], stream=40)[0].astype(float).mean(axis=2)
     white = sim.capture(np.full_like(frame, 255)[None], stream=41)[0].astype(float).mean(axis=2)
     seen_white = warped > 0.5 * white
@@ -78,3 +85,21 @@ def test_warp_of_float_images_keeps_values():
     flat = np.full((128, 128, 3), 0.25, np.float32)
     out = registration.warp(flat, wmap)
     np.testing.assert_allclose(out[wmap.mask], 0.25, atol=1e-6)
+
+
+def test_resampled_pinhole_keeps_the_image_area():
+    """A pinhole resampled to another pixel grid (the canonical view) sees the same image area:
+    a point lands at the same fraction of the width and height whatever the grid's aspect."""
+    cfg = _beside((64, 48)).projector
+    points = np.array([[0.1, 0.05, 0.0], [-0.2, 0.15, 0.0], [0.0, -0.1, 0.0]])
+    own = geometry.Pinhole.from_config(cfg)
+    want = own.project(points)[0] / [own.width, own.height]
+    for size in [(64, 64), (64, 48), (48, 64), (30, 20)]:
+        pin = geometry.Pinhole.from_config(cfg, size)
+        np.testing.assert_allclose(pin.project(points)[0] / size, want, atol=1e-12)
+        # the rays through the grid's corner pixel centres hit the fractions of those centres
+        rays = pin.pixel_rays()
+        hit = pin.position + rays * (-pin.position[2] / rays[..., 2])[..., None]  # plane z = 0
+        frac = own.project(hit)[0] / [own.width, own.height]
+        np.testing.assert_allclose(frac[0, 0], [0.5 / size[0], 0.5 / size[1]], atol=1e-9)
+        np.testing.assert_allclose(frac[-1, -1], [1 - 0.5 / size[0], 1 - 0.5 / size[1]], atol=1e-9)
