@@ -64,8 +64,30 @@ class FrameSpec:
 
     def source(self) -> dict:
         """What identifies the frames (counts excluded: a larger run extends a smaller one)."""
-        return {"size": list(self.size), "seed": self.seed,
+        return {"width": int(self.size[0]), "height": int(self.size[1]), "seed": self.seed,
                 "images_dir": str(Path(self.images_dir).resolve()) if self.images_dir else None}
+
+
+def canonical_size(record: dict) -> tuple[int, int] | None:
+    """Canonical (width, height) in pixels recorded in a ``meta.json`` or a ``frames.json`` source:
+    its ``width`` and ``height``, or the ``size`` [width, height] of files written before those;
+    None if neither is there."""
+    if "width" in record and "height" in record:
+        return int(record["width"]), int(record["height"])
+    if "size" in record:
+        w, h = record["size"]
+        return int(w), int(h)
+    return None
+
+
+def _same_source(old: dict, new: dict) -> bool:
+    """Whether a ``frames.json`` source (possibly of the older ``size`` form) equals ``new``."""
+    if not isinstance(old, dict):
+        return False
+    size = canonical_size(old)
+    rest = {k: v for k, v in old.items() if k not in ("size", "width", "height")}
+    return size == canonical_size(new) and rest == {k: v for k, v in new.items()
+                                                    if k not in ("width", "height")}
 
 
 def projector_frames(spec: FrameSpec) -> dict[str, np.ndarray]:
@@ -91,7 +113,7 @@ def write_frames(root: Path, spec: FrameSpec) -> dict[str, np.ndarray]:
     marker = root / "frames.json"
     if marker.exists():
         old = json.loads(marker.read_text())
-        if old.get("source") != spec.source():
+        if not _same_source(old.get("source"), spec.source()):
             raise DatasetError(f"{marker}: this root's projector frames were made with "
                                f"{old.get('source')}, not {spec.source()}; use another --out")
     frames = projector_frames(spec)
@@ -177,7 +199,7 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
     meta_file = out / "meta.json"
     if meta_file.exists():
         meta = json.loads(meta_file.read_text())
-        if same_setup and meta.get("size") == list(spec.size) and all(
+        if same_setup and canonical_size(meta) == tuple(spec.size) and all(
                 meta.get("counts", {}).get(k, 0) >= n for k, n in counts.items()):
             return out
         meta_file.unlink()  # more captures asked for, or a different setup: no longer finished
@@ -229,7 +251,8 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         "ambient_spp": setup.render.ambient_spp,
         "seeds": {"render": setup.render.seed, "frames": spec.seed,
                   "streams": seeds.STREAMS},
-        "size": list(spec.size),
+        "width": int(spec.size[0]),  # canonical size, pixels
+        "height": int(spec.size[1]),
         "camera_resolution": list(setup.camera.resolution),
         "counts": counts,
         "frames": spec.source(),

@@ -104,6 +104,28 @@ def test_resume_compares_setups_not_their_formatting(rendered, tmp_path, capsys)
     assert _files(data) == before
 
 
+def test_sizes_are_recorded_as_width_and_height_and_older_records_read(rendered):
+    from sim.dataset import canonical_size
+
+    data = rendered / "data"
+    meta_file, marker = data / "tiny" / "meta.json", data / "frames.json"
+    meta, frames = json.loads(meta_file.read_text()), json.loads(marker.read_text())
+    assert (meta["width"], meta["height"]) == (32, 32) and "size" not in meta
+    assert (frames["source"]["width"], frames["source"]["height"]) == (32, 32)
+    assert canonical_size({"width": 64, "height": 48}) == (64, 48)
+    assert canonical_size({"size": [64, 48]}) == (64, 48)  # older files: [width, height]
+    assert canonical_size({}) is None
+    # a root written before width/height were recorded resumes without re-rendering anything
+    for path, record in ((meta_file, meta), (marker, frames["source"])):
+        record["size"] = [record.pop("width"), record.pop("height")]
+    meta_file.write_text(json.dumps(meta))
+    marker.write_text(json.dumps(frames))
+    before = {p: t for p, t in _files(data).items() if p != marker}
+    assert main(["render", str(rendered / "tiny.toml"), "--out", str(data), *ARGS]) == 0
+    assert {p: t for p, t in _files(data).items() if p != marker} == before
+    assert json.loads(marker.read_text())["source"]["width"] == 32  # upgraded in place
+
+
 def test_same_seed_same_bytes_other_seed_other_noise(rendered, tmp_path):
     assert main(["render", str(_setup_file(tmp_path, seed=0)), "--out", str(tmp_path / "a"), *ARGS]) == 0
     assert main(["render", str(_setup_file(tmp_path, seed=1, name="b.toml")), "--out",

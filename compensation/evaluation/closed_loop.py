@@ -18,6 +18,7 @@ from compensation.data import SetupData
 from compensation.evaluation.metrics import evaluate, masked_scores
 from sim import seeds
 from sim.capture import Simulator
+from sim.dataset import canonical_size
 from sim.errors import DatasetError
 from sim.io import to_float, to_uint8
 from sim.setup import load_setup
@@ -35,7 +36,10 @@ def simulator_for(setup_dir: str | Path) -> Simulator:
     except (OSError, json.JSONDecodeError) as exc:
         raise DatasetError(f"{setup_dir / 'meta.json'}: cannot read ({exc})") from None
     setup = load_setup(setup_dir / "setup.toml")
-    return Simulator(setup, tuple(meta["size"]), meta.get("fidelity"), meta.get("spp"),
+    size = canonical_size(meta)
+    if size is None:
+        raise DatasetError(f"{setup_dir / 'meta.json'}: no canonical width and height")
+    return Simulator(setup, size, meta.get("fidelity"), meta.get("spp"),
                      cache_dir=setup_dir / "cache")
 
 
