@@ -66,8 +66,8 @@ NGF = 64
 """Generator filters in the outermost level (channels)."""
 NDF = 64
 """Discriminator filters in the first layer (channels)."""
-MIN_LEVELS = 5
-"""Fewest U-Net levels: the official construction's four outer levels plus the innermost one."""
+MIN_LEVELS = 4
+"""Fewest U-Net levels (4: a 64 × 48 view; the published nets have 7 and 8)."""
 MAX_LEVELS = 8
 """Most U-Net levels (``unet_256``)."""
 DROPOUT = 0.5
@@ -110,25 +110,29 @@ def check_size(height: int, width: int, levels: int) -> None:
 def unet_levels(height: int, width: int) -> int:
     """Number of U-Net levels for ``height`` × ``width`` images (pixels).
 
-    log2 of the smaller side, at most :data:`MAX_LEVELS`: 256² → 8 (``unet_256``), 128² → 7
-    (``unet_128``), 32² → 5. Width and height must be divisible by 2^levels.
+    As many halvings as both sides allow, at most :data:`MAX_LEVELS`: log2 of the smaller side for
+    power-of-two sizes (256² → 8, ``unet_256``; 128² → 7, ``unet_128``; 32² → 5), fewer where a
+    side has fewer factors of two (64 × 48 → 4: a 4 × 3 bottleneck).
 
     Raises
     ------
     ProcamError
-        If the smaller side is below 2^:data:`MIN_LEVELS` = 32 pixels or the size is not
-        divisible by 2^levels.
+        If the sides allow fewer than :data:`MIN_LEVELS` halvings.
 
     Examples
     --------
     >>> unet_levels(256, 256), unet_levels(128, 128), unet_levels(32, 32), unet_levels(512, 1024)
     (8, 7, 5, 8)
+    >>> unet_levels(48, 64)
+    4
     """
-    side = min(height, width)
-    if side < 2 ** MIN_LEVELS:
-        raise ProcamError(f"{width}x{height} pixels: pix2pix's U-Net needs width and height of at "
-                          f"least {2 ** MIN_LEVELS} pixels")
-    levels = min(MAX_LEVELS, int(side).bit_length() - 1)
+    def halvings(n: int) -> int:
+        return (n & -n).bit_length() - 1 if n > 0 else 0
+
+    levels = min(MAX_LEVELS, int(min(height, width)).bit_length() - 1, halvings(height), halvings(width))
+    if levels < MIN_LEVELS:
+        raise ProcamError(f"{width}x{height} pixels: pix2pix's U-Net needs width and height divisible "
+                          f"by 2^{MIN_LEVELS} = {2 ** MIN_LEVELS} (e.g. 64x48, 128 or 256)")
     check_size(height, width, levels)
     return levels
 
