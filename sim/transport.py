@@ -284,20 +284,18 @@ class TransportOperator:
         out = out.reshape(hc, wc, 3, n).permute(3, 2, 0, 1)
         return out[0] if single else out
 
-    def apply(self, irradiance: torch.Tensor) -> torch.Tensor:
-        """The full linear radiance ``T · irradiance + b`` (projector plus ambient light).
+    def project_image(self, irradiance: np.ndarray, device: str = "cpu") -> np.ndarray:
+        """:meth:`project` for one NumPy image: float (Hp, Wp, 3) -> float32 (Hc, Wc, 3).
 
-        Same shapes as :meth:`project`.
-        """
-        b = torch.from_numpy(self.ambient).to(irradiance.device).permute(2, 0, 1)
-        return self.project(irradiance) + b
-
-    def project_image(self, irradiance: np.ndarray) -> np.ndarray:
-        """:meth:`project` for one NumPy image: float (Hp, Wp, 3) -> float32 (Hc, Wc, 3) (CPU)."""
+        On the CPU with SciPy's single-threaded product; on another torch device (``cuda``) with
+        the torch CSR matrix there (the GPU path of a ``cuda_*`` variant)."""
         wp, hp = self.projector_size
         x = np.ascontiguousarray(irradiance, dtype=np.float32)
         if x.shape != (hp, wp, 3):
             raise ValueError(f"irradiance: expected shape ({hp}, {wp}, 3), got {x.shape}")
+        if torch.device(device).type != "cpu":
+            out = self.project(torch.from_numpy(x).permute(2, 0, 1).to(device))
+            return out.permute(1, 2, 0).cpu().numpy()
         wc, hc = self.camera_size
         return (self.scipy_matrix() @ x.reshape(-1)).astype(np.float32).reshape(hc, wc, 3)
 
@@ -407,6 +405,9 @@ class TransportRenderer(Renderer):
         The calibrated operator.
     loaded_from_cache : bool
         True when the operator was read from ``cache_dir`` instead of calibrated.
+    device : str
+        Where frames are projected through the operator: ``cuda`` under a ``cuda_*`` variant,
+        else ``cpu``.
     """
 
     def __init__(self, setup: Setup, spp: int | None = None, variant: str | None = None,
@@ -423,13 +424,14 @@ class TransportRenderer(Renderer):
             if path is not None:
                 self.operator.save(path)
         self.fidelity = "transport"
+        self.device = "cuda" if self.variant.startswith("cuda") and torch.cuda.is_available() else "cpu"
 
     def projector_radiance(self, irradiance: np.ndarray, seed: int = 0) -> np.ndarray:
         """``T · irradiance`` (the Mitsuba direct render during calibration); ``seed`` is unused
         once calibrated."""
         if self.fidelity != "transport":
             return super().projector_radiance(irradiance, seed)
-        return self.operator.project_image(irradiance)
+        return self.operator.project_image(irradiance, self.device)
 
     def ambient_radiance(self) -> np.ndarray:
         """The ambient image ``b`` (rendered once, at ``render.ambient_spp``, direct light)."""
