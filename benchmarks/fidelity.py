@@ -1,4 +1,4 @@
-"""Fidelity benchmark (issue 5): captures per second of each level at 256², the calibration cost of
+"""Fidelity benchmark: captures per second of each level at 256², the calibration cost of
 ``transport``, and the time of the 24-setup suite (126 + 500 + 200 captures each) with ``auto``
 against all-``direct`` at 16 spp — measured on a subset of the suite and extrapolated.
 

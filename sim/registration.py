@@ -1,4 +1,4 @@
-"""Camera → canonical projector view (design.md §4).
+"""Camera → canonical projector view.
 
 The canonical view is the projector's own image resampled to the dataset's size: canonical pixel
 (column, row) of a W × H view shows the projector's image at ((column + 0.5) / W, (row + 0.5) / H)

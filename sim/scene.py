@@ -2,7 +2,7 @@
 
 The projector contribution and the ambient image are rendered by two separate scenes (two
 emitters in one render make Mitsuba pick one per sample: ~10× the noise); by linearity their sum
-is the full image. See design.md §2–3.
+is the full image.
 """
 from __future__ import annotations
 
