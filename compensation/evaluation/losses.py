@@ -69,11 +69,52 @@ def l1_ssim(pred: Tensor, target: Tensor) -> Tensor:
     return l1(pred, target) + ssim_loss(pred, target)
 
 
+def l1_l2(pred: Tensor, target: Tensor) -> Tensor:
+    """``l1 + l2`` (a loss of the official code's later versions).
+
+    Examples
+    --------
+    >>> import torch
+    >>> l1_l2(torch.zeros(1, 3, 4, 4), torch.full((1, 3, 4, 4), 0.5))
+    tensor(0.7500)
+    """
+    return l1(pred, target) + l2(pred, target)
+
+
+def l2_ssim(pred: Tensor, target: Tensor) -> Tensor:
+    """``l2 + (1 - ssim)`` (a loss of the official code's later versions).
+
+    Examples
+    --------
+    >>> import torch
+    >>> x = torch.rand(2, 3, 16, 16, generator=torch.Generator().manual_seed(0))
+    >>> l2_ssim(x, x).abs().item() < 1e-6
+    True
+    """
+    return l2(pred, target) + ssim_loss(pred, target)
+
+
+def l1_l2_ssim(pred: Tensor, target: Tensor) -> Tensor:
+    """``l1 + l2 + (1 - ssim)``, the loss of CompenHR.
+
+    Examples
+    --------
+    >>> import torch
+    >>> x = torch.rand(2, 3, 16, 16, generator=torch.Generator().manual_seed(0))
+    >>> l1_l2_ssim(x, x).abs().item() < 1e-6
+    True
+    """
+    return l1(pred, target) + l2(pred, target) + ssim_loss(pred, target)
+
+
 LOSSES: dict[str, Callable[[Tensor, Tensor], Tensor]] = {
     "l1": l1,
     "l2": l2,
     "ssim": ssim_loss,
     "l1+ssim": l1_ssim,
+    "l1+l2": l1_l2,
+    "l2+ssim": l2_ssim,
+    "l1+l2+ssim": l1_l2_ssim,
 }
 """Loss functions by configuration name; ``"ssim"`` is the loss ``1 - ssim``."""
 

@@ -54,6 +54,9 @@ def save_state(model: torch.nn.Module, path: Path) -> None:
 def load_state(path: Path) -> dict[str, torch.Tensor]:
     """Load a plain state dict with ``torch.load(weights_only=True)`` — never arbitrary pickles.
 
+    A state dict saved under ``torch.nn.DataParallel`` (every key prefixed ``module.``, as the
+    official CompenNet code's multi-GPU checkpoints are) is returned without the prefix.
+
     Raises
     ------
     ProcamError
@@ -79,6 +82,8 @@ def load_state(path: Path) -> dict[str, torch.Tensor]:
             isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()):
         raise ProcamError(f"{path}: expected a state dict (parameter name → tensor), "
                           f"found {type(state).__name__}")
+    if state and all(k.startswith("module.") for k in state):
+        state = {k[len("module."):]: v for k, v in state.items()}
     return state
 
 

@@ -243,8 +243,11 @@ class CompenNetOptions(Options):
     """Multiply the learning rate by ``lr_gamma`` every this many steps (>= 1; paper 800)."""
     lr_gamma: float = 0.2
     """Learning-rate decay factor (> 0; paper 0.2)."""
-    loss: Literal["l1", "l2", "ssim", "l1+ssim"] = "l1+ssim"
-    """Training loss (paper ``l1+ssim``: ℓ1 + (1 − SSIM))."""
+    loss: Literal["l1", "l2", "ssim", "l1+ssim", "l1+l2", "l2+ssim", "l1+l2+ssim"] = "l1+ssim"
+    """Training loss (paper ``l1+ssim``: ℓ1 + (1 − SSIM); CompenHR ``l1+l2+ssim``)."""
+    sampler: Literal["epoch", "random"] = "epoch"
+    """Batch order: ``epoch`` (a seeded permutation per epoch, every pair once per epoch) or
+    ``random`` (a fresh random batch each iteration, as the official code draws them)."""
     amp: bool = False
     """Mixed precision on CUDA (bf16 autocast where supported, else fp16 with a gradient scaler);
     the CPU path is plain fp32 either way (paper: off)."""

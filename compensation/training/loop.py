@@ -38,11 +38,12 @@ CHECKPOINT_EVERY = 50
 
 
 class BatchSampler:
-    """Endless batches of distinct indices in [0, n), drawn without replacement; checkpointable.
+    """Endless batches of distinct indices in [0, n); checkpointable.
 
-    Each epoch is a seeded permutation; a batch that straddles two epochs takes the rest of the
-    old one and fills up with indices of the new one that it does not hold yet, so every index
-    appears once per epoch and never twice in a batch.
+    ``epoch`` mode: each epoch is a seeded permutation; a batch that straddles two epochs takes
+    the rest of the old one and fills up with indices of the new one that it does not hold yet,
+    so every index appears once per epoch and never twice in a batch. ``random`` mode: every
+    batch is a fresh random draw of distinct indices (the official CompenNet code's sampler).
 
     Parameters
     ----------
@@ -52,6 +53,8 @@ class BatchSampler:
         Batch size, at most ``n``.
     seed : int
         Seed of the permutations.
+    mode : {"epoch", "random"}
+        How batches are drawn.
 
     Examples
     --------
@@ -65,8 +68,10 @@ class BatchSampler:
     True
     """
 
-    def __init__(self, n: int, batch: int, seed: int):
-        self.n, self.batch = n, batch
+    def __init__(self, n: int, batch: int, seed: int, mode: str = "epoch"):
+        if mode not in ("epoch", "random"):
+            raise ValueError(f"sampler mode {mode!r}: expected 'epoch' or 'random'")
+        self.n, self.batch, self.mode = n, batch, mode
         self.generator = torch.Generator().manual_seed(seed)
         self.pool = torch.randperm(n, generator=self.generator)
 
@@ -75,6 +80,8 @@ class BatchSampler:
 
     def __next__(self) -> torch.Tensor:
         """The next batch: int64 indices, shape (batch,)."""
+        if self.mode == "random":
+            return torch.randperm(self.n, generator=self.generator)[:self.batch]
         if len(self.pool) >= self.batch:
             out, self.pool = self.pool[:self.batch], self.pool[self.batch:]
         else:
@@ -178,7 +185,7 @@ def _load_checkpoint(path: Path, values: torch.Tensor, sampler: BatchSampler, st
 def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int, iters: int,
                seed: int, device: torch.device, names: tuple[str, ...], desc: str,
                progress: bool = True, stateful: dict | None = None, checkpoint: Path | None = None,
-               every: int | None = None) -> LoopResult:
+               every: int | None = None, sampler: str = "epoch") -> LoopResult:
     """Run ``iters`` steps on batches of distinct training indices, resumable.
 
     With a ``checkpoint`` path, the loop resumes from that file when it exists, saves it every
@@ -215,6 +222,8 @@ def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int,
         Training-state file to resume from and save to.
     every : int, optional
         Iterations between checkpoints (default :data:`CHECKPOINT_EVERY`).
+    sampler : {"epoch", "random"}
+        How batches are drawn (:class:`BatchSampler`).
 
     Raises
     ------
@@ -225,16 +234,16 @@ def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int,
     stateful = stateful or {}
     every = every or CHECKPOINT_EVERY
     batch = min(batch, n)
-    sampler = BatchSampler(n, batch, seed)
+    batches = BatchSampler(n, batch, seed, sampler)
     values = torch.zeros(iters, len(names), dtype=torch.float64, device=device)
     done, spent = 0, 0.0
     if checkpoint is not None and Path(checkpoint).exists():
-        done, spent = _load_checkpoint(Path(checkpoint), values, sampler, stateful)
+        done, spent = _load_checkpoint(Path(checkpoint), values, batches, stateful)
     start = time.perf_counter() - spent
     with tqdm(total=iters, initial=done, desc=desc, unit="it", disable=not progress) as bar, \
             _Interrupt() as interrupt:
         for it in range(done, iters):
-            values[it] = step(next(sampler).to(device))
+            values[it] = step(next(batches).to(device))
             bar.update()
             if it % CHECK_EVERY == CHECK_EVERY - 1 or it == iters - 1:
                 current = values[it].tolist()
@@ -245,7 +254,7 @@ def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int,
                 bar.set_postfix({names[0]: f"{current[0]:.4f}", "samples_per_s": f"{rate:.1f}"})
             if checkpoint is not None and (interrupt.signum is not None or (it + 1) % every == 0
                                            or it + 1 == iters):
-                _save_checkpoint(Path(checkpoint), it + 1, values, sampler, stateful,
+                _save_checkpoint(Path(checkpoint), it + 1, values, batches, stateful,
                                  time.perf_counter() - start)
             if interrupt.signum is not None:
                 where = f"; training state saved to {checkpoint}, run the same command to resume" \
@@ -265,9 +274,9 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
                 progress: bool = True, checkpoint: Path | None = None) -> dict:
     """Train a CompenNet-style ``model`` (already on its device) on ``data.train``: the paper's recipe.
 
-    Adam(lr, weight_decay), StepLR(lr_step, lr_gamma), batches without replacement, the loss
-    named by ``cfg.options.loss``; with ``use_surface`` the network's surface branch is fed s̃ with
-    batch 1, broadcast over the batch. On CUDA with ``cfg.options.amp``, autocast plus a gradient
+    Adam(lr, weight_decay), StepLR(lr_step, lr_gamma), batches as ``cfg.options.sampler``
+    draws them, the loss named by ``cfg.options.loss``; with ``use_surface`` the network's surface
+    branch is fed s̃ with batch 1, broadcast over the batch. On CUDA with ``cfg.options.amp``, autocast plus a gradient
     scaler (fp16 only); on the CPU the amp flag changes nothing.
 
     Returns
@@ -306,7 +315,8 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
         stateful["scaler"] = scaler
     model.train()
     result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device, ("loss", "lr"),
-                        f"train {cfg.method} on {data.name}", progress, stateful, checkpoint)
+                        f"train {cfg.method} on {data.name}", progress, stateful, checkpoint,
+                        sampler=opt.sampler)
     return {"seconds": result.seconds, "samples_per_second": result.samples_per_second,
             "final_loss": result.final_loss, "batch": result.batch,
             "loss_curve": [(i + 1, v[0], v[1]) for i, v in enumerate(result.values)]}
