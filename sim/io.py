@@ -167,8 +167,8 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
 def to_float(image: np.ndarray) -> np.ndarray:
     """Convert 8-bit encoded values to float32 in [0, 1] (still encoded, not linearised).
 
-    >>> to_float(np.array([0, 51, 255], np.uint8))
-    array([0. , 0.2, 1. ], dtype=float32)
+    >>> [round(v, 6) for v in to_float(np.array([0, 51, 255], np.uint8)).tolist()]
+    [0.0, 0.2, 1.0]
     """
     return np.asarray(image, dtype=np.float32) / 255.0
 
@@ -176,8 +176,8 @@ def to_float(image: np.ndarray) -> np.ndarray:
 def to_uint8(image: np.ndarray) -> np.ndarray:
     """Round float values in [0, 1] to 8-bit (values outside are clipped).
 
-    >>> to_uint8(np.array([-0.1, 0.5, 1.2]))
-    array([  0, 128, 255], dtype=uint8)
+    >>> to_uint8(np.array([-0.1, 0.5, 1.2])).tolist()
+    [0, 128, 255]
     """
     return np.clip(np.rint(np.asarray(image, dtype=np.float64) * 255.0), 0, 255).astype(np.uint8)
 

@@ -59,6 +59,19 @@ def data(setup_dir):
     return load_setup_data(setup_dir)
 
 
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """One intra-op torch thread for a module, then the previous count: 32² batches gain nothing from
+    more, and on a shared machine two OpenMP threads spin-wait against other processes (measured
+    10× slower than one)."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _flush_jit():
     """Clear Dr.Jit's kernel and memory caches after each test module."""
@@ -67,3 +80,23 @@ def _flush_jit():
 
     dr.flush_kernel_cache()
     dr.flush_malloc_cache()
+
+
+def pytest_collection_modifyitems(items):
+    """Run the doctests of ``sim/`` and ``compensation/`` under numpy's default print options.
+
+    colour-science calls ``np.set_printoptions(legacy="1.13")`` when it is imported (by
+    ``sim.camera``), which changes how arrays and numpy scalars print; whether it has been imported
+    before a doctest runs depends on the collection order. The examples are written in numpy's own
+    format, so each doctest runs under the defaults, and the previous options are restored after it.
+    """
+    import numpy as np
+    from _pytest.doctest import DoctestItem
+
+    for item in items:
+        if isinstance(item, DoctestItem):
+            def runtest(run=item.runtest):
+                with np.printoptions(legacy=False):
+                    run()
+
+            item.runtest = runtest

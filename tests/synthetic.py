@@ -1,4 +1,4 @@
-"""A tiny synthetic dataset in the layout of design.md §5, for tests of the compensation side.
+"""A tiny synthetic dataset in the dataset layout (docs/architecture.md), for tests of the compensation side.
 
 The "setup" is a known invertible degradation, no rendering involved::
 

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 import torch
 
-from compensation.closed_loop import (closed_loop, iterative_refinement, reachable_mask, reachable_overlay,
-                                      simulator_for)
-from compensation.metrics import masked_scores, psnr, rmse
 from compensation.data import load_setup_data
-from compensation.methods import Method
+from compensation.evaluation.closed_loop import (closed_loop, iterative_refinement, reachable_mask,
+                                                 reachable_overlay, simulator_for)
+from compensation.evaluation.metrics import masked_scores, psnr, rmse
+from compensation.methods.base import Method, NoOptions
 from conftest import tiny_setup
 from sim.dataset import FrameSpec, write_setup
 
@@ -18,6 +18,7 @@ class Identity(Method):
     """π†(y) = y: the right compensation for a perfect white surface."""
 
     name = "identity"
+    options = NoOptions
 
     def fit(self, data, cfg, progress=True):
         return {}

@@ -1,24 +1,55 @@
-"""``procam demo`` end to end on a tiny size: the table's rows, the figure and the JSON on disk."""
+"""``procam demo`` end to end on a tiny size: the table's rows, margins over uncompensated, the figure
+and the JSON on disk, resumable."""
 import json
+import math
 
 import imageio.v3 as iio
 
-from compensation.demo import METHODS, N_FIGURE, run_demo
+from compensation.demo import METHODS, N_FIGURE, ORACLE_ITERATIONS, run_demo
+
+SMALL = dict(size=32, n_train=8, n_test=N_FIGURE, iters=10, batch=4)
+"""32² with 8 training pairs; CompenNet trains 10 iterations (TPS takes neither)."""
+TPS_SURROGATE_MARGIN_DB = 6.0
+"""TPS surrogate PSNR (π†(x̃) vs x) above uncompensated (measured +10.0 dB)."""
+CLOSED_LOOP_MARGIN_DB = 3.0
+"""Closed-loop PSNR of TPS and of the feedback oracle above y projected as is (measured +4.1 and
++4.3 dB; most desired pixels of the default setup are out of reach at this size)."""
+REACHABLE_MARGIN_DB = 10.0
+"""The same on the reachable pixels only (measured +16 and +20 dB)."""
 
 
 def test_demo_tiny(tmp_path, capsys):
-    results = run_demo(tmp_path, progress=False, size=32, n_train=16, n_test=N_FIGURE, iters=20, batch=4)
+    results = run_demo(tmp_path, progress=False, **SMALL)
     out = capsys.readouterr().out
+    assert f"({SMALL['size']}² px, {SMALL['n_train']} train / {SMALL['n_test']} test pairs)" in out
     for name in METHODS:
         assert f"{name}: surrogate" in out and f"{name}: closed loop" in out
-        assert 0 < results[name]["closed_loop"]["psnr"] < 60
-        assert 0 <= results[name]["closed_loop"]["reachable_fraction"] <= 1
-    assert "oracle: feedback" in out and "physically reachable" in out
-    # the oracle corrects by the measured error: it must beat y projected as is
-    assert results["oracle"][-1]["psnr"] > results["uncompensated"]["psnr"]
+        closed = results[name]["closed_loop"]
+        assert all(math.isfinite(closed[k]) for k in ("psnr", "rmse", "ssim", "psnr_reachable"))
+        assert closed["reachable_fraction"] == results["uncompensated"]["reachable_fraction"]
+        assert closed["projections"] == N_FIGURE
+    assert f"oracle: feedback, {ORACLE_ITERATIONS} it." in out and "physically reachable" in out
+
+    unc, tps, oracle = results["uncompensated"], results["tps"], results["oracle"][-1]
+    assert 0 < unc["reachable_fraction"] < 1
+    assert tps["surrogate"]["psnr"] > unc["psnr"] + TPS_SURROGATE_MARGIN_DB
+    assert tps["closed_loop"]["psnr"] > unc["psnr"] + CLOSED_LOOP_MARGIN_DB
+    assert tps["closed_loop"]["psnr_reachable"] > unc["psnr_reachable"] + REACHABLE_MARGIN_DB
+    # the oracle corrects by the measured error: it beats y projected as is by far
+    assert oracle["iterations"] == ORACLE_ITERATIONS
+    assert oracle["psnr"] > unc["psnr"] + CLOSED_LOOP_MARGIN_DB
+    assert oracle["psnr_reachable"] > unc["psnr_reachable"] + REACHABLE_MARGIN_DB
+    # CompenNet is only run here: 10 iterations on 8 pairs do not beat uncompensated on the rendered
+    # setup (even 60 at batch 8 reach 17.0 vs 17.7 dB); its margin is held on the synthetic setup by
+    # tests/test_methods_contract.py.
+    assert results["compennet"]["train_seconds"] > 0
+
     assert json.loads((tmp_path / "demo.json").read_text()).keys() == results.keys()
     grid = iio.imread(tmp_path / "demo.png")
-    assert grid.ndim == 3 and grid.shape[2] == 3 and grid.shape[1] > grid.shape[0]  # 5 columns × 4 rows
+    assert grid.ndim == 3 and grid.shape[2] == 3 and grid.shape[1] > grid.shape[0]  # 6 columns × 4 rows
     # resumable: a second run reuses the dataset and the runs and gives the same numbers
-    again = run_demo(tmp_path, progress=False, size=32, n_train=16, n_test=N_FIGURE, iters=20, batch=4)
-    assert again[METHODS[0]]["surrogate"] == results[METHODS[0]]["surrogate"]
+    stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / "runs").rglob("metrics.json")}
+    again = run_demo(tmp_path, progress=False, **SMALL)
+    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps and len(stamps) == len(METHODS)
+    for name in METHODS:
+        assert again[name]["surrogate"] == results[name]["surrogate"]

@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from compensation.models import CompenNet, count_parameters
+from compensation.methods.compennet import CompenNet, count_parameters
 
 N, H, W = 3, 16, 24  # non-square, so swapped axes would show
 
@@ -36,7 +36,7 @@ def test_state_dict_names_follow_official_code():
     plain = set(CompenNet(surface=False).state_dict())
     assert plain == {k for k in keys if "_s." not in k}
     model = CompenNet()
-    assert model.transConv1.weight.shape == (128, 64, 2, 2)  # k2 s2, as in design section 7
+    assert model.transConv1.weight.shape == (128, 64, 2, 2)  # 2×2 kernel, stride 2 (official layout)
     assert model.skipConv3.weight.shape == (128, 64, 1, 1)
 
 

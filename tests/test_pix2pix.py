@@ -1,4 +1,4 @@
-"""compensation.pix2pix: the published networks, the training step, the method's life cycle."""
+"""compensation.methods.pix2pix: the published networks, the training step, the method's life cycle."""
 from __future__ import annotations
 
 import csv
@@ -11,11 +11,14 @@ import pytest
 import torch
 
 from compensation.data import PairSet, SetupData
-from compensation.methods import CHECKPOINT, get_method, save_state
-from compensation.models import CompenNet, count_parameters
-from compensation.pix2pix import (LR, PIX2PIX_PROFILES, PatchDiscriminator, Pix2Pix, Pix2PixMethod,
-                                  UNetGenerator, check_size, init_normal, unet_levels)
-from compensation.train import PROFILES, TrainConfig, make_config, train_run
+from compensation.methods import get_method
+from compensation.methods.base import CHECKPOINT, save_state
+from compensation.methods.compennet import CompenNet, CompenNetOptions, count_parameters
+from compensation.methods.pix2pix import (LAMBDA_L1, LR, PIX2PIX_PROFILES, PatchDiscriminator, Pix2Pix,
+                                          Pix2PixMethod, Pix2PixOptions, UNetGenerator, check_size,
+                                          init_normal, unet_levels)
+from compensation.training.config import TrainConfig, make_config
+from compensation.training.runs import train_run
 from sim.errors import ProcamError
 from synthetic import make_dataset, random_frames
 
@@ -61,20 +64,22 @@ def test_shapes_32px_five_levels():
     # Dropout sits in the decoder of levels 4 … levels-2: three levels for unet_256, two for unet_128.
     with torch.device("meta"):
         dropout = {n: [i for i, up in enumerate(UNetGenerator(n).up)
-                       if any(isinstance(m, torch.nn.Dropout) for m in up)] for n in (5, 7, 8)}
-    assert dropout == {5: [], 7: [4, 5], 8: [4, 5, 6]}
+                       if any(isinstance(m, torch.nn.Dropout) for m in up)] for n in (4, 5, 7, 8)}
+    assert dropout == {4: [], 5: [], 7: [4, 5], 8: [4, 5, 6]}
 
 
 @pytest.mark.parametrize("size, levels", [((256, 256), 8), ((128, 128), 7), ((64, 64), 6), ((32, 32), 5),
-                                          ((512, 512), 8), ((64, 128), 6)])
+                                          ((512, 512), 8), ((64, 128), 6), ((48, 64), 4), ((48, 48), 4),
+                                          ((96, 128), 5), ((16, 16), 4)])
 def test_levels_from_image_size(size, levels):
     assert unet_levels(*size) == levels
 
 
 @pytest.mark.parametrize("size, message", [
-    ((48, 48), "48x48 pixels: pix2pix's U-Net with 5 levels needs width and height divisible by 2^5 = 32"),
-    ((128, 96), "96x128 pixels: pix2pix's U-Net with 6 levels needs width and height divisible by 2^6 = 64"),
-    ((16, 16), "16x16 pixels: pix2pix's U-Net needs width and height of at least 32 pixels"),
+    ((40, 40), "40x40 pixels: pix2pix's U-Net needs width and height divisible by 2^4 = 16 "
+               "(e.g. 64x48, 128 or 256)"),
+    ((64, 24), "24x64 pixels: pix2pix's U-Net needs width and height divisible by 2^4 = 16"),
+    ((8, 8), "8x8 pixels: pix2pix's U-Net needs width and height divisible by 2^4 = 16"),
 ])
 def test_size_not_divisible_is_refused(size, message):
     with pytest.raises(ProcamError, match=re.escape(message)):
@@ -87,9 +92,10 @@ def in_memory_setup(captures: torch.Tensor, frames: torch.Tensor) -> SetupData:
                      surface=captures[:1])
 
 
-def tiny_config(**overrides) -> TrainConfig:
-    values = dict(method="pix2pix", iters=30, batch=1, eval_batch=4, device="cpu", n_train=None, n_test=None)
-    return TrainConfig(**{**values, **overrides})
+def tiny_config(**options) -> TrainConfig:
+    """30 iterations at batch 1 (pix2pix options over ``options``), CPU, all pairs."""
+    own = Pix2PixOptions(**{"iters": 30, "batch": 1, **options})
+    return TrainConfig(method="pix2pix", options=own, eval_batch=4, device="cpu", n_train=None, n_test=None)
 
 
 @pytest.fixture(scope="module")
@@ -163,8 +169,9 @@ def test_predict_refuses_sizes_the_unet_cannot_take(fitted):
 
 
 def test_fit_refuses_a_dataset_size_the_unet_cannot_take():
-    x = torch.rand(2, 3, 48, 48)
-    with pytest.raises(ProcamError, match=re.escape("48x48 pixels: pix2pix's U-Net with 5 levels")):
+    x = torch.rand(2, 3, 40, 40)
+    with pytest.raises(ProcamError, match=re.escape("40x40 pixels: pix2pix's U-Net needs width and height "
+                                                    "divisible by 2^4 = 16")):
         Pix2PixMethod(device="cpu").fit(in_memory_setup(x, x), tiny_config(iters=1), progress=False)
 
 
@@ -189,15 +196,50 @@ def test_train_run_writes_a_run_directory(tmp_path):
 
 def test_schedule_uses_pix2pix_profiles_unless_overridden():
     assert PIX2PIX_PROFILES["paper"] == dict(iters=10000, batch=1)
-    sched = lambda cfg: (cfg.iters, cfg.batch)  # noqa: E731
+    assert Pix2PixOptions.profiles is PIX2PIX_PROFILES
+    sched = lambda cfg: (cfg.options.iters, cfg.options.batch)  # noqa: E731
     assert sched(make_config("paper", method="pix2pix")) == (10000, 1)
     assert sched(make_config("paper", method="compennet")) == (1000, 64)
     quick = PIX2PIX_PROFILES["quick"]
     assert sched(make_config("quick", method="pix2pix")) == (quick["iters"], 1)
     assert sched(make_config("quick", method="pix2pix", iters=7)) == (7, 1)
     assert sched(make_config("quick", method="pix2pix", batch=4)) == (quick["iters"], 4)
-    assert sched(make_config("quick", method="pix2pix", iters=PROFILES["quick"]["iters"], batch=16)) == (
-        PROFILES["quick"]["iters"], 16)  # an explicit value equal to CompenNet's is still honoured
+    compennet = CompenNetOptions.profiles["quick"]
+    assert sched(make_config("quick", method="pix2pix", iters=compennet["iters"], batch=16)) == (
+        compennet["iters"], 16)  # an explicit value equal to CompenNet's is still honoured
+    paper = make_config("paper", method="pix2pix").options
+    assert (paper.lr, paper.l1_weight, paper.init) == (LR, LAMBDA_L1, None) == (2e-4, 100.0, None)
+
+
+@pytest.mark.parametrize("option, value", [("loss", "l1"), ("weight_decay", 0.0), ("lr_step", 10),
+                                           ("lr_gamma", 0.5), ("amp", True), ("smoothing", 0.1)])
+def test_options_pix2pix_does_not_use_are_refused(option, value):
+    """pix2pix trains with its own fixed objective, a constant learning rate and no weight decay:
+    CompenNet's (and TPS's) options are refused, naming the method and the option."""
+    with pytest.raises(ProcamError, match=re.escape(f"method 'pix2pix' does not use option {option!r} "
+                                                    "(its options: iters, batch, lr, l1_weight, init;")):
+        make_config("quick", "pix2pix", **{option: value})
+
+
+def test_lr_and_l1_weight_are_used(inverse_setup):
+    """The learning rate is recorded in the loss curve and changes the fit; λ = 0 (GAN loss only)
+    trains other weights than the published λ = 100."""
+    def fit(**options):
+        method = Pix2PixMethod(device="cpu")
+        stats = method.fit(inverse_setup, tiny_config(iters=3, **options), progress=False)
+        return stats, method.model.state_dict()
+
+    base_stats, base = fit()
+    lr_stats, other_lr = fit(lr=1e-3)
+    _, no_l1 = fit(l1_weight=0.0)
+    assert {row[2] for row in base_stats["loss_curve"]} == {LR}
+    assert {row[2] for row in lr_stats["loss_curve"]} == {1e-3}
+    key = "generator.down.0.weight"
+    assert not torch.equal(base[key], other_lr[key]) and not torch.equal(base[key], no_l1[key])
+    with pytest.raises(ProcamError, match=re.escape("option l1_weight = -1.0: expected a number >= 0")):
+        Pix2PixOptions(l1_weight=-1.0)
+    with pytest.raises(ProcamError, match=re.escape("option lr = 0.0: expected a positive number")):
+        Pix2PixOptions(lr=0.0)
 
 
 def test_check_size_accepts_multiples():

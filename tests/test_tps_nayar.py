@@ -1,18 +1,20 @@
-"""compensation.tps and compensation.nayar: the per-pixel baselines against planted models,
+"""compensation.methods.tps and compensation.methods.nayar: the per-pixel baselines against planted models,
 scipy's RBFInterpolator, and the training registry on the tiny synthetic setup."""
 from __future__ import annotations
 
 import json
+import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 from scipy.interpolate import RBFInterpolator
 
-from compensation import nayar, tps
 from compensation.data import PairSet, SetupData
-from compensation.methods import get_method
-from compensation.train import TrainConfig, load_run, train_run
+from compensation.methods import get_method, nayar, tps
+from compensation.training.config import TrainConfig
+from compensation.training.runs import load_run, train_run
 from sim.errors import ProcamError
 
 STATE = {"tps": tps.STATE_FILE, "tps-textured": tps.STATE_FILE, "nayar": nayar.STATE_FILE}
@@ -242,9 +244,10 @@ def test_nayar_needs_the_primary_ramps():
 
 # --- through the registry -----------------------------------------------------------------------
 
-def fit_config(method: str) -> TrainConfig:
-    return TrainConfig(method=method, iters=1, batch=8, eval_batch=3, device="cpu", n_train=None,
-                       n_test=None)
+def fit_config(method: str, **options) -> TrainConfig:
+    """The method's default options (over ``options``), all pairs, CPU."""
+    return TrainConfig(method=method, options=get_method(method).options(**options), eval_batch=3,
+                       device="cpu", n_train=None, n_test=None)
 
 
 @pytest.mark.parametrize("name", ["tps", "tps-textured", "nayar"])
@@ -305,11 +308,38 @@ def test_predict_checks_the_image_size(data):
 
 
 def test_tps_textured_takes_a_seeded_subset_beyond_max_samples(data):
-    method = tps.TPSTexturedMethod("cpu", max_samples=8)
-    first = method.training_pairs(data, fit_config("tps-textured"))
-    again = method.training_pairs(data, fit_config("tps-textured"))
+    method = tps.TPSTexturedMethod("cpu")
+    first = method.training_pairs(data, fit_config("tps-textured", max_samples=8))
+    again = method.training_pairs(data, fit_config("tps-textured", max_samples=8))
     assert len(first) == 8 and torch.equal(first.captures, again.captures)
     rows = {tuple(f.flatten()[:64].tolist()) for f in data.train.frames}
     assert all(tuple(f.flatten()[:64].tolist()) in rows for f in first.frames)
-    every = tps.TPSTexturedMethod("cpu").training_pairs(data, fit_config("tps-textured"))
+    other_seed = method.training_pairs(data, replace(fit_config("tps-textured", max_samples=8), seed=1))
+    assert not torch.equal(first.captures, other_seed.captures)
+    every = method.training_pairs(data, fit_config("tps-textured"))
     assert len(every) == len(data.train)
+
+
+@pytest.mark.parametrize("name", ["tps", "tps-textured"])
+def test_tps_fit_uses_the_smoothing_option(name, data, tmp_path):
+    """``smoothing`` comes from ``cfg.options``: it is the λ of the fit and is saved with the state;
+    a larger λ leaves larger residuals at the samples."""
+    fitted = {}
+    for smoothing in (0.0, 0.5):
+        method = get_method(name)("cpu")
+        stats = method.fit(data, fit_config(name, smoothing=smoothing, workers=1), progress=False)
+        assert method.smoothing == smoothing
+        method.save(tmp_path)
+        assert get_method(name).load(tmp_path, "cpu").smoothing == smoothing
+        fitted[smoothing] = stats["final_loss"]
+    assert fitted[0.0] < 1e-4 < fitted[0.5]
+
+
+@pytest.mark.parametrize("options, message", [
+    (dict(smoothing=-1.0), "option smoothing = -1.0: expected a number >= 0"),
+    (dict(workers=0), "option workers = 0: expected a positive integer"),
+    (dict(max_samples=3), "option max_samples = 3: expected an integer >= 4"),
+])
+def test_tps_options_are_checked(options, message):
+    with pytest.raises(ProcamError, match=re.escape(message)):
+        tps.TPSTexturedOptions(**options)

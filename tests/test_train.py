@@ -1,29 +1,36 @@
-"""compensation.train / compensation.methods: the paper's recipe on a tiny synthetic setup."""
+"""compensation.training (config, loop, runs) and the CompenNet methods: the paper's recipe on a tiny
+synthetic setup."""
 from __future__ import annotations
 
 import csv
 import json
 import re
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 
-from compensation.methods import METHODS, get_method, load_state
-from compensation.metrics import evaluate
-from compensation.train import (PROFILES, TrainConfig, batch_indices, compensate, load_run, make_config,
-                                train_run)
+from compensation.evaluation.metrics import evaluate
+from compensation.methods import METHODS, get_method
+from compensation.methods.base import load_state
+from compensation.methods.compennet import CompenNetOptions
+from compensation.methods.tps import TPSOptions
+from compensation.training.config import COMMON, PROFILES, TrainConfig, make_config
+from compensation.training.loop import BatchSampler
+from compensation.training.runs import compensate, load_run, run_size, train_run
 from sim.errors import ProcamError
 from sim.io import read_png, to_uint8
 
 RUN_FILES = {"config.json", "loss.csv", "loss.png", "model.pt", "metrics.json", "examples.png"}
 
 
-def tiny_config(method: str = "compennet", **overrides) -> TrainConfig:
-    """32², batch 8, CPU: a few seconds per 100 iterations on 2 cores."""
-    values = dict(method=method, iters=200, batch=8, eval_batch=8, device="cpu", n_train=None, n_test=None)
-    return TrainConfig(**{**values, **overrides})
+def tiny_config(method: str = "compennet", **options) -> TrainConfig:
+    """32², batch 8, CPU: a few seconds per 100 iterations on 2 cores; ``options`` are the
+    method's own (CompenNet's iters, lr_step, init, …)."""
+    own = get_method(method).options(**{"iters": 200, "batch": 8, **options})
+    return TrainConfig(method=method, options=own, eval_batch=8, device="cpu", n_train=None, n_test=None)
 
 
 def read_losses(run_dir) -> list[float]:
@@ -31,14 +38,7 @@ def read_losses(run_dir) -> list[float]:
         return [float(row["loss"]) for row in csv.DictReader(f)]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """32² batches gain nothing from intra-op threads, and on a shared machine two OpenMP threads
-    spin-wait against other processes (measured 10× slower than one): use one, then restore."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
@@ -73,11 +73,16 @@ def test_uncompensated_row_is_captures_vs_frames(run, data):
 
 def test_run_directory(run, setup_dir, data):
     assert {p.name for p in run.iterdir()} == RUN_FILES
-    assert not list(run.parent.glob("*.tmp-*"))
+    assert sorted(p.name for p in run.parent.iterdir()) == ["compennet"]  # nothing half-written beside it
     config = json.loads((run / "config.json").read_text())
-    assert config["train"] == {**vars(tiny_config()), "n_train": 16, "n_test": 4}
+    assert config["train"] == {**tiny_config().to_dict(), "n_train": 16, "n_test": 4}
+    assert config["train"]["options"] == {"iters": 200, "batch": 8, "lr": 1e-3, "weight_decay": 1e-4,
+                                          "lr_step": 800, "lr_gamma": 0.2, "loss": "l1+ssim",
+                                          "sampler": "epoch", "amp": False, "init": None}
+    assert TrainConfig.from_dict(config["train"]) == replace(tiny_config(), n_train=16, n_test=4)
     assert config["dataset"] == str(setup_dir.resolve())
-    assert config["image_size"] == [32, 32] and config["torch_version"] == torch.__version__
+    assert config["image_size"] == {"width": 32, "height": 32} and run_size(config) == (32, 32)
+    assert config["torch_version"] == torch.__version__
     assert config["device"].startswith("cpu") and "procam_version" in config
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["method"] == "compennet" and metrics["setup"] == "synth"
@@ -125,7 +130,7 @@ def test_nosurf_runs_without_surface_branch(nosurf_run):
     losses = read_losses(nosurf_run)
     assert np.mean(losses[-10:]) < np.mean(losses[:10])
     n_params = sum(t.numel() for t in load_state(nosurf_run / "model.pt").values())
-    assert n_params == 736_063  # design.md §7: CompenNet w/o surf
+    assert n_params == 736_063  # CompenNet w/o surf
 
 
 def test_surface_input_matters_only_with_the_surface_branch(run, nosurf_run, data):
@@ -179,14 +184,14 @@ def test_init_from_a_run(run, setup_dir, tmp_path):
     pretrained, scratch = read_losses(out), read_losses(run)
     # Starting from the trained weights, the first losses are already near the end of the first run.
     assert np.mean(pretrained[:5]) < 0.6 * np.mean(scratch[:5])
-    assert json.loads((out / "config.json").read_text())["train"]["init"] == str(run.resolve())
+    assert json.loads((out / "config.json").read_text())["train"]["options"]["init"] == str(run.resolve())
 
 
 def test_init_from_another_architecture_is_refused(nosurf_run, setup_dir, tmp_path):
     message = f"{nosurf_run / 'model.pt'}: weights do not fit the compennet architecture (missing "
     with pytest.raises(ProcamError, match=re.escape(message)):
         train_run(setup_dir, tiny_config(iters=2, init=str(nosurf_run)), tmp_path / "r", progress=False)
-    assert not (tmp_path / "r").exists() and not list(tmp_path.glob("r.tmp-*"))
+    assert not (tmp_path / "r").exists() and not list(tmp_path.rglob("metrics.json"))
 
 
 def test_existing_run_is_replaced_only_when_asked(setup_dir, tmp_path):
@@ -221,8 +226,7 @@ def test_compensate_uses_the_run_dataset_surface(run, data, tmp_path):
 
 
 def test_batches_without_replacement():
-    gen = torch.Generator().manual_seed(0)
-    batches = batch_indices(10, 4, gen)
+    batches = BatchSampler(10, 4, seed=0)
     drawn = torch.cat([next(batches) for _ in range(10)])  # 40 indices: exactly 4 epochs
     for b in drawn.view(10, 4):
         assert len(set(b.tolist())) == 4
@@ -230,26 +234,80 @@ def test_batches_without_replacement():
         assert sorted(epoch.tolist()) == list(range(10))
 
 
+def test_random_sampler_draws_each_batch_afresh():
+    """The official code's sampler: distinct indices within a batch, no epoch structure."""
+    batches = BatchSampler(10, 4, seed=0, mode="random")
+    drawn = torch.stack([next(batches) for _ in range(50)])
+    assert all(len(set(b.tolist())) == 4 for b in drawn)
+    assert any(sorted(e.tolist()) != list(range(10)) for e in drawn[:10].reshape(4, 10))
+    again = BatchSampler(10, 4, seed=0, mode="random")
+    assert torch.equal(torch.stack([next(again) for _ in range(50)]), drawn)
+    with pytest.raises(ValueError, match="sampler mode 'shuffle'"):
+        BatchSampler(10, 4, seed=0, mode="shuffle")
+
+
+def test_sampler_option_is_used(data):
+    weights = {}
+    for sampler in ("epoch", "random"):
+        method = get_method("compennet")(device="cpu")
+        method.fit(data, tiny_config(iters=3, sampler=sampler), progress=False)
+        weights[sampler] = method.model.state_dict()["conv1.weight"]
+    assert not torch.equal(weights["epoch"], weights["random"])
+
+
+def test_unknown_sampler_is_refused_by_the_config():
+    with pytest.raises(ProcamError, match=re.escape("option sampler = 'shuffle': expected")):
+        make_config("quick", sampler="shuffle")
+
+
+def test_data_parallel_checkpoint_loads_without_prefix(run, tmp_path):
+    """Checkpoints saved under torch.nn.DataParallel (keys prefixed ``module.``) load as plain ones."""
+    state = load_state(run / "model.pt")
+    torch.save({f"module.{k}": v for k, v in state.items()}, tmp_path / "model.pt")
+    loaded = load_state(tmp_path / "model.pt")
+    assert loaded.keys() == state.keys() and all(torch.equal(loaded[k], state[k]) for k in state)
+
+
 def test_make_config_profiles_and_errors():
     quick = make_config("quick", iters=7, n_train=None)
-    assert quick.profile == "quick" and quick.iters == 7
-    assert quick.batch == PROFILES["quick"]["batch"] and quick.n_train == PROFILES["quick"]["n_train"]
+    assert quick.profile == "quick" and quick.method == "compennet" and quick.options.iters == 7
+    assert quick.options.batch == CompenNetOptions.profiles["quick"]["batch"]
+    assert quick.options.lr_step == CompenNetOptions.profiles["quick"]["lr_step"]
+    assert quick.n_train == PROFILES["quick"]["n_train"]
     paper = make_config("paper")
-    assert (paper.n_train, paper.n_test, paper.iters, paper.batch, paper.lr, paper.weight_decay,
-            paper.lr_step, paper.lr_gamma, paper.loss, paper.seed) == (500, 200, 1000, 64, 1e-3, 1e-4,
-                                                                        800, 0.2, "l1+ssim", 0)
+    o = paper.options
+    assert (paper.n_train, paper.n_test, o.iters, o.batch, o.lr, o.weight_decay, o.lr_step, o.lr_gamma,
+            o.loss, o.amp, o.init, paper.seed) == (500, 200, 1000, 64, 1e-3, 1e-4, 800, 0.2, "l1+ssim",
+                                                   False, None, 0)
+    assert make_config("quick", "tps", smoothing=0.5, seed=3).options == TPSOptions(smoothing=0.5)
     with pytest.raises(ProcamError, match="profile 'fast': choose one of paper, quick"):
         make_config("fast")
-    with pytest.raises(ProcamError, match="unknown training option"):
+    with pytest.raises(ProcamError, match=re.escape("method 'compennet' does not use option 'iterations' "
+                                                    "(its options: iters, batch, lr,")):
         make_config("quick", iterations=3)
-    with pytest.raises(ProcamError, match="method 'tps9'"):
+    with pytest.raises(ProcamError, match="unknown method 'tps9'"):
         make_config("quick", method="tps9")
-    with pytest.raises(ProcamError, match="batch=0: expected a positive integer"):
+    with pytest.raises(ProcamError, match=re.escape("option batch = 0: expected a positive integer")):
         make_config("quick", batch=0)
+    with pytest.raises(ProcamError, match=re.escape("option loss = 'l3': expected one of l1, l2, ssim")):
+        make_config("quick", loss="l3")
+    with pytest.raises(ProcamError, match=re.escape("n_test = 0: expected a positive integer")):
+        make_config("quick", n_test=0)
+
+
+def test_train_config_checks_its_options():
+    assert TrainConfig(method="tps").options == TPSOptions()  # None: the method's defaults
+    with pytest.raises(ProcamError, match="method 'tps' takes TPSOptions, got CompenNetOptions"):
+        TrainConfig(method="tps", options=CompenNetOptions())
+    assert set(COMMON) == {"n_train", "n_test", "seed", "device", "eval_batch"}
+    for name in METHODS:  # to_dict / from_dict round trip, for every method's defaults
+        cfg = make_config("quick", name)
+        assert TrainConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
 
 
 def test_registry():
     assert {"compennet", "compennet-nosurf"} <= set(METHODS)
-    with pytest.raises(ValueError, match="unknown method 'nope'; choose one of: ") as error:
+    assert all(cls.name == name for name, cls in METHODS.items())
+    with pytest.raises(ProcamError, match="unknown method 'nope'; choose one of: ") as error:
         get_method("nope")
     assert all(name in str(error.value) for name in METHODS)

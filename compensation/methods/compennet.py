@@ -271,6 +271,7 @@ class CompenNetOptions(Options):
             self._require(name, getattr(self, name) > 0, "a positive number")
         self._require("weight_decay", self.weight_decay >= 0, "a number >= 0")
         self._require("loss", self.loss in LOSSES, f"one of {', '.join(LOSSES)}")
+        self._require("sampler", self.sampler in ("epoch", "random"), "'epoch' or 'random'")
 
 
 class CompenNetMethod(Method):

@@ -28,11 +28,11 @@ from compensation.evaluation.metrics import evaluate
 from compensation.methods import get_method
 from compensation.methods.base import Method, resolve_device
 from compensation.training.config import TrainConfig
+from sim.errors import ProcamError
+from sim.io import atomic_write, read_json, read_png, to_uint8, write_json, write_png
 
 CHECKPOINT_FILE = "checkpoint.pt"
 """Training state of an unfinished run, inside its :func:`partial_dir`."""
-from sim.errors import ProcamError
-from sim.io import atomic_write, read_json, read_png, to_uint8, write_json, write_png
 
 
 def _package_version() -> str:
