@@ -1,0 +1,184 @@
+"""Fault injection on the learning side: bad arguments and outputs give a clear error (exit 2, the
+file, key or value named, no traceback, nothing written); killed benches resume to the same tables;
+stale runs are not reused; files respect the umask."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from compensation.cli import main
+from compensation.training.config import make_config
+from compensation.training.runs import partial_dir, train_run
+from sim.io import write_png
+
+ROOT = Path(__file__).resolve().parents[1]
+TRAIN = ["--n-train", "8", "--n-test", "4", "--quiet"]
+
+
+def _fails(capsys, argv: list[str], *expected: str) -> str:
+    """Run the CLI: exit 2, every ``expected`` text in the message, no traceback."""
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.startswith("procam: error:"), err
+    for text in expected:
+        assert text in err, (text, err)
+    return err
+
+
+def _tree(folder: Path) -> set[Path]:
+    return {p.relative_to(folder) for p in folder.rglob("*")} if folder.exists() else set()
+
+
+# -- class 4: stale work and unknown names are refused before any work --------------------------
+
+def test_unknown_method_in_bench_is_refused_before_any_work(tmp_path, capsys):
+    _fails(capsys, ["bench", "default", "--out", str(tmp_path / "b"), "--methods", "tps,bogus"],
+           "unknown method 'bogus'", "tps")
+    assert not (tmp_path / "b").exists()
+
+
+def test_bench_option_no_method_uses_is_refused(tmp_path, capsys):
+    _fails(capsys, ["bench", "default", "--out", str(tmp_path / "b"), "--methods", "tps",
+                    "--tables", "1", "--l1-weight", "5"], "'l1_weight'", "tps")
+    assert not (tmp_path / "b").exists()
+
+
+def test_train_option_of_another_method_is_refused(setup_dir, tmp_path, capsys):
+    _fails(capsys, ["train", str(setup_dir), "--method", "tps", "--loss", "ssim", "--out",
+                    str(tmp_path / "run"), *TRAIN], "method 'tps' does not use option 'loss'")
+    assert _tree(tmp_path) == set()
+
+
+# -- class 5: output paths ----------------------------------------------------------------------
+
+def test_train_out_at_an_existing_file(setup_dir, tmp_path, capsys):
+    target = tmp_path / "run"
+    target.write_text("not a run")
+    _fails(capsys, ["train", str(setup_dir), "--method", "nayar", "--out", str(target), *TRAIN],
+           str(target), "is a file")
+    assert target.read_text() == "not a run"
+
+
+def test_train_out_that_cannot_be_created_fails_before_training(setup_dir, tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    _fails(capsys, ["train", str(setup_dir), "--method", "compennet", "--iters", "500", "--out",
+                    str(blocker / "run"), *TRAIN], str(blocker), "cannot write the run there")
+
+
+def test_compensate_refuses_two_inputs_with_one_output_name(setup_dir, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["train", str(setup_dir), "--method", "nayar", "--out", str(run), *TRAIN]) == 0
+    image = np.full((32, 32, 3), 100, np.uint8)
+    write_png(tmp_path / "a" / "x.png", image)
+    write_png(tmp_path / "b" / "x.png", image)
+    out = tmp_path / "frames"
+    _fails(capsys, ["compensate", str(run), str(tmp_path / "a" / "x.png"), str(tmp_path / "b" / "x.png"),
+                    "--out", str(out)], "x.png")
+    assert not out.exists()
+    # one input and --out NAME.png writes that file, not a folder
+    assert main(["compensate", str(run), str(tmp_path / "a" / "x.png"), "--out", str(tmp_path / "y.png")]) == 0
+    assert (tmp_path / "y.png").is_file()
+
+
+# -- class 6: damaged run records ---------------------------------------------------------------
+
+@pytest.mark.parametrize("damage,expected", [
+    (lambda c: c.write_text("{not json"), "cannot read run configuration"),
+    (lambda c: c.write_text(json.dumps({k: v for k, v in json.loads(c.read_text()).items()
+                                        if k != "image_size"})), "'image_size'"),
+    (lambda c: c.write_text(json.dumps({**json.loads(c.read_text()), "train": {"method": "bogus"}})),
+     "unknown method 'bogus'"),
+])
+def test_damaged_config_json_names_file_and_key(setup_dir, tmp_path, capsys, damage, expected):
+    run = tmp_path / "run"
+    assert main(["train", str(setup_dir), "--method", "nayar", "--out", str(run), *TRAIN]) == 0
+    damage(run / "config.json")
+    write_png(tmp_path / "y.png", np.full((32, 32, 3), 100, np.uint8))
+    _fails(capsys, ["compensate", str(run), str(tmp_path / "y.png"), "--out", str(tmp_path / "f.png")],
+           "config.json", expected)
+    assert not (tmp_path / "f.png").exists()
+
+
+# -- class 7: permissions and leftovers ---------------------------------------------------------
+
+def test_run_files_respect_the_umask_and_leave_nothing_behind(setup_dir, tmp_path):
+    old = os.umask(0o022)
+    try:
+        run = tmp_path / "run"
+        train_run(setup_dir, make_config("quick", "compennet", iters=3, batch=4, n_train=8, n_test=4),
+                  run, progress=False)
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(run.stat().st_mode) == 0o755
+    for path in run.iterdir():
+        assert stat.S_IMODE(path.stat().st_mode) == 0o644, path
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no partial or temporary folder
+
+
+# -- classes 4 and 8: a killed bench resumes to the same tables; a changed option retrains -------
+
+BENCH_SETUP = """
+name = "tinybench"
+[surface]
+texture = "noise"
+texture_resolution = 64
+[projector]
+resolution = [32, 32]
+[camera]
+resolution = [32, 32]
+[render]
+fidelity = "direct"
+spp = 4
+ambient_spp = 16
+"""
+BENCH_ARGS = ["--methods", "compennet,tps", "--tables", "1", "--sizes", "8", "--size", "32",
+              "--n-test", "2", "--iters", "80", "--batch", "4", "--quiet"]
+
+
+def _bench(tmp: Path, out: str, *extra: str) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "compensation.cli", "bench", str(tmp / "setup.toml"), "--out",
+           str(tmp / out), "--data", str(tmp / "data"), *BENCH_ARGS, *extra]
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _scores(table: Path) -> list[list[str]]:
+    """Table 1's rows without the timing column."""
+    rows = [line.split(" | ") for line in table.read_text().splitlines() if line.startswith("| ")]
+    return [[c for i, c in enumerate(r) if i != 5] for r in rows]
+
+
+@pytest.mark.slow
+def test_killed_bench_resumes_to_the_same_table(tmp_path):
+    (tmp_path / "setup.toml").write_text(BENCH_SETUP)
+    whole = _bench(tmp_path, "whole")
+    assert whole.wait() == 0, whole.communicate()
+    proc = _bench(tmp_path, "killed")
+    checkpoint = partial_dir(tmp_path / "killed" / "runs" / "tinybench" / "compennet-n8") / "checkpoint.pt"
+    end = time.monotonic() + 300
+    while not checkpoint.exists():
+        assert proc.poll() is None and time.monotonic() < end, proc.communicate()
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    resumed = _bench(tmp_path, "killed")
+    assert resumed.wait() == 0, resumed.communicate()
+    assert _scores(tmp_path / "whole" / "table1.md") == _scores(tmp_path / "killed" / "table1.md")
+    # another --seed is another run: nothing stale is reused under the new label
+    before = json.loads((tmp_path / "killed" / "runs" / "tinybench" / "compennet-n8" / "config.json").read_text())
+    reseeded = _bench(tmp_path, "killed", "--seed", "1")
+    assert reseeded.wait() == 0, reseeded.communicate()
+    after = json.loads((tmp_path / "killed" / "runs" / "tinybench" / "compennet-n8" / "config.json").read_text())
+    assert (before["train"]["seed"], after["train"]["seed"]) == (0, 1)
+    shutil.rmtree(tmp_path / "data")
