@@ -11,10 +11,10 @@ STAMP  := $(VENV)/.procam-installed
 
 .PHONY: demo test venv llvm bench clean-venv
 
-demo: venv llvm
-	$(VENV)/bin/procam demo --out data
-
 # Passive OpenMP waiting: with spinning threads torch slows down 10-30x when the cores are shared.
+demo: venv llvm
+	OMP_WAIT_POLICY=PASSIVE $(VENV)/bin/procam demo --out data
+
 test: venv llvm
 	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q
 
