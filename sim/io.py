@@ -123,12 +123,14 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
         If the file is missing or cannot be decoded.
     """
     import imageio.v3 as iio
+    from PIL.Image import DecompressionBombError
 
     path = Path(path)
     try:
         img = iio.imread(path)
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"{path}: cannot read image ({exc})") from None
+    except (OSError, ValueError, SyntaxError, DecompressionBombError) as exc:  # Pillow's errors
+        reason = (str(exc).splitlines() or [type(exc).__name__])[0]  # not imageio's install hints
+        raise DatasetError(f"{path}: cannot read image ({reason})") from None
     if img.dtype != np.uint8:
         if img.dtype == np.uint16:
             img = (img.astype(np.float64) / 257.0).round().astype(np.uint8)
