@@ -116,7 +116,17 @@ def measure(setup: Setup, reference_spp: int = 1024, classes=PROBE_CLASSES,
     summary : dict
         ``reference_seconds``, ``auto`` (the :class:`~sim.fidelity.Choice` as a dict) and
         ``sentence``, the read-off of the ``auto`` choice.
+
+    Raises
+    ------
+    ProcamError
+        If ``reference_spp``, ``window``, ``repeats`` or an ``spp`` is below 1 (named with its
+        ``procam bench-sim`` option).
     """
+    for name, value in (("ref-spp", reference_spp), ("window", window), ("repeats", repeats),
+                        *(("spp", n) for n in spp)):
+        if value is not None and value < 1:
+            raise ProcamError(f"bench-sim --{name} {value}: expected an integer >= 1")
     probe = Probe(setup, classes, reference_spp, window)
     auto = choose(setup)
     rows = []
