@@ -3,7 +3,8 @@
 Every file procam writes goes through :func:`atomic_write`: the content lands in a uniquely named
 temporary file beside the destination, which is then renamed over it, so a reader (or a resumed
 run) never sees a truncated file, even when the writer is killed. Files get the permissions the
-process umask allows (as ``open`` would give them), not ``mkstemp``'s 0600.
+process umask allows (as ``open`` would give them): the temporary file is created with mode 0666,
+which the kernel masks, so no thread ever changes the process umask.
 
 >>> import tempfile, pathlib
 >>> folder = pathlib.Path(tempfile.mkdtemp())
@@ -19,23 +20,15 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
-import threading
+import secrets
 from pathlib import Path
 
 import numpy as np
 
 from sim.errors import DatasetError
 
-_UMASK_LOCK = threading.Lock()
-
-
-def _umask() -> int:
-    """The process umask (read by setting and restoring it, under a lock)."""
-    with _UMASK_LOCK:
-        mask = os.umask(0)
-        os.umask(mask)
-    return mask
+TEMP_SUFFIX = ".tmp"
+"""Suffix of :func:`atomic_write`'s temporary files (``.<name>.<random>.tmp``)."""
 
 
 def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
@@ -58,14 +51,19 @@ def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    while True:
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}{TEMP_SUFFIX}"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            break
+        except FileExistsError:
+            continue
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data.encode() if isinstance(data, str) else data)
-        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
 
 
