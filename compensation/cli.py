@@ -25,10 +25,12 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def cmd_render(args: argparse.Namespace) -> None:
-    from sim.dataset import FrameSpec, write_setup
+    from sim.dataset import FrameSpec, check_render, write_setup
 
     setups = load_setups(args.setup)
     spec = FrameSpec(args.n_train, args.n_test, args.size, args.frame_seed, args.images)
+    for setup in setups:  # every setup of a suite is checked before the first is rendered
+        check_render(setup, spec, args.fidelity, args.spp)
     for setup in setups:
         out = write_setup(Path(args.out), setup, spec, args.fidelity, args.spp,
                           progress=not args.quiet, overwrite=args.overwrite)

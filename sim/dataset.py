@@ -25,9 +25,10 @@ from tqdm import tqdm
 from sim import images, registration, seeds
 from sim.capture import Simulator, capture_workers, pipelined
 from sim.errors import DatasetError, SetupError
-from sim.fidelity import describe
+from sim.fidelity import check_level, check_spp, describe
 from sim.io import read_png, write_json, write_png, write_text
 from sim.setup import Setup, dump_setup, load_setup
+from sim.variant import choose_variant
 
 N_REF = 126
 """125 plain colours (0001 black … 0125 white) and the gray surface frame 0126."""
@@ -54,6 +55,12 @@ class FrameSpec:
     images_dir : str or None
         A folder of the user's own frames (train then test, sorted by name) instead of the
         generator.
+
+    Raises
+    ------
+    DatasetError
+        If a count or a side is below 1 or the seed is negative (named with its ``procam render``
+        option).
     """
 
     n_train: int = 500
@@ -61,6 +68,16 @@ class FrameSpec:
     size: tuple[int, int] = (256, 256)
     seed: int = 0
     images_dir: str | None = None
+
+    def __post_init__(self):
+        for name, option, value, least in (("n_train", "--n-train", self.n_train, 1),
+                                           ("n_test", "--n-test", self.n_test, 1),
+                                           ("seed", "--frame-seed", self.seed, 0),
+                                           ("width", "--size", self.size[0], 1),
+                                           ("height", "--size", self.size[1], 1)):
+            if not isinstance(value, (int, np.integer)) or value < least:
+                raise DatasetError(f"projector frames: {name} ({option}) = {value!r}: expected an "
+                                   f"integer >= {least}")
 
     def source(self) -> dict:
         """What identifies the frames (counts excluded: a larger run extends a smaller one)."""
@@ -102,8 +119,9 @@ def projector_frames(spec: FrameSpec) -> dict[str, np.ndarray]:
             "test": images.projector_frames(spec.n_test, spec.size, spec.seed, seeds.TEST_FRAMES)}
 
 
-def write_frames(root: Path, spec: FrameSpec) -> dict[str, np.ndarray]:
-    """Write (or check and extend) the shared projector frames of a root.
+def write_frames(root: Path, spec: FrameSpec, frames: dict[str, np.ndarray]) -> None:
+    """Write (or check and extend) the shared projector frames of a root, :func:`projector_frames`
+    of ``spec``.
 
     Raises
     ------
@@ -116,7 +134,6 @@ def write_frames(root: Path, spec: FrameSpec) -> dict[str, np.ndarray]:
         if not _same_source(old.get("source"), spec.source()):
             raise DatasetError(f"{marker}: this root's projector frames were made with "
                                f"{old.get('source')}, not {spec.source()}; use another --out")
-    frames = projector_frames(spec)
     for split, stack in frames.items():
         for i, frame in enumerate(stack, start=1):
             path = root / split / image_name(i)
@@ -127,7 +144,24 @@ def write_frames(root: Path, spec: FrameSpec) -> dict[str, np.ndarray]:
         old_counts = json.loads(marker.read_text()).get("counts", {})
         counts = {k: max(v, old_counts.get(k, 0)) for k, v in counts.items()}
     write_json(marker, {"source": spec.source(), "counts": counts})
-    return frames
+
+
+def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
+                 spp: int | None = None) -> None:
+    """Check what a render of ``setup`` can check without writing or rendering anything.
+
+    The Mitsuba variant (``PROCAM_VARIANT``), the fidelity level and spp asked for, and that the
+    camera sees enough of the projector image (:func:`sim.registration.check_visible`).
+
+    Raises
+    ------
+    ProcamError
+        Naming the setup key, option or environment variable at fault.
+    """
+    check_level(setup, fidelity or setup.render.fidelity)
+    check_spp(setup, spp)
+    registration.check_visible(setup, spec.size)
+    choose_variant()
 
 
 def _finish_capture(sim: Simulator, radiance: np.ndarray | None, raw: np.ndarray | None, stream: int,
@@ -188,13 +222,15 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         The setup folder.
     """
     root = Path(root)
+    check_render(setup, spec, fidelity, spp)
+    frames = projector_frames(spec)  # reads --images: a bad file is refused before any write
     out = root / setup.name
     setup_file = out / "setup.toml"
     same_setup = _same_setup(setup_file, setup)
     if setup_file.exists() and not same_setup and not overwrite:
         raise DatasetError(f"{setup_file}: the folder holds captures of a different setup; "
                            "choose another --out or pass --overwrite")
-    frames = write_frames(root, spec)
+    write_frames(root, spec, frames)
     counts = {k: len(v) for k, v in frames.items()}
     meta_file = out / "meta.json"
     if meta_file.exists():
