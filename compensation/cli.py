@@ -53,7 +53,9 @@ def add_render(sub) -> None:
                         "below the camera noise; transport: a light-transport operator calibrated "
                         "once from direct renders at --spp)")
     p.add_argument("--spp", type=int, default=None, help="override the setup's samples per pixel")
-    p.add_argument("--overwrite", action="store_true", help="replace a folder rendered from another setup")
+    p.add_argument("--overwrite", action="store_true",
+                   help="render again a folder rendered from another setup, variant, fidelity, spp "
+                        "or size (instead of refusing it)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_render)
 

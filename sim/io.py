@@ -27,6 +27,8 @@ import numpy as np
 
 from sim.errors import DatasetError
 
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+"""The last 12 bytes of every PNG file: the empty ``IEND`` chunk and its CRC."""
 TEMP_SUFFIX = ".tmp"
 """Suffix of :func:`atomic_write`'s temporary files (``.<name>.<random>.tmp``)."""
 
@@ -65,6 +67,14 @@ def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def remove_temporaries(folder: str | os.PathLike) -> None:
+    """Delete the temporary files that killed :func:`atomic_write` calls left in ``folder`` and
+    below (``.<name>.<random>.tmp``). Only safe while no other process writes there."""
+    for tmp in Path(folder).rglob(f".*{TEMP_SUFFIX}"):
+        if tmp.is_file():
+            tmp.unlink(missing_ok=True)
 
 
 def write_text(path: str | os.PathLike, text: str) -> None:
@@ -141,6 +151,37 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
     elif img.ndim != 3 or img.shape[2] != 3:
         raise DatasetError(f"{path}: expected an RGB image, found shape {img.shape}")
     return np.ascontiguousarray(img)
+
+
+def intact_png(path: str | os.PathLike, shape: tuple[int, ...]) -> np.ndarray | None:
+    """A PNG that :func:`write_png` wrote, or None unless it is complete and of ``shape``.
+
+    A file truncated or damaged after it was written (it lacks the final ``IEND`` chunk, fails
+    to decode or has another size) gives None, so that a resumed run writes it again.
+
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "img.png"
+    >>> write_png(path, np.zeros((2, 3, 3), np.uint8))
+    >>> intact_png(path, (2, 3, 3)).shape, intact_png(path, (3, 2, 3))
+    ((2, 3, 3), None)
+    >>> path.write_bytes(path.read_bytes()[:-1]) and intact_png(path, (2, 3, 3)) is None
+    True
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - len(_PNG_END)))
+            complete = f.read() == _PNG_END
+    except OSError:
+        return None
+    if not complete:
+        return None
+    try:
+        image = read_png(path)
+    except DatasetError:
+        return None
+    return image if image.shape == tuple(shape) else None
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
