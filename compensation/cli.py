@@ -25,10 +25,12 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def cmd_render(args: argparse.Namespace) -> None:
-    from sim.dataset import FrameSpec, write_setup
+    from sim.dataset import FrameSpec, check_render, write_setup
 
     setups = load_setups(args.setup)
     spec = FrameSpec(args.n_train, args.n_test, args.size, args.frame_seed, args.images)
+    for setup in setups:  # every setup of a suite is checked before the first is rendered
+        check_render(setup, spec, args.fidelity, args.spp)
     for setup in setups:
         out = write_setup(Path(args.out), setup, spec, args.fidelity, args.spp,
                           progress=not args.quiet, overwrite=args.overwrite)
@@ -51,7 +53,9 @@ def add_render(sub) -> None:
                         "below the camera noise; transport: a light-transport operator calibrated "
                         "once from direct renders at --spp)")
     p.add_argument("--spp", type=int, default=None, help="override the setup's samples per pixel")
-    p.add_argument("--overwrite", action="store_true", help="replace a folder rendered from another setup")
+    p.add_argument("--overwrite", action="store_true",
+                   help="render again a folder rendered from another setup, variant, fidelity, spp "
+                        "or size (instead of refusing it)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_render)
 

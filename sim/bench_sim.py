@@ -21,6 +21,7 @@ reference's time is that of its two renders per frame. PSNR is ``10 log10(1 / MS
 from __future__ import annotations
 
 import csv
+import io
 import textwrap
 import time
 from pathlib import Path
@@ -31,6 +32,7 @@ from sim import seeds
 from sim.errors import ProcamError
 from sim.fidelity import (DATASET_CAPTURES, FLOOR_FRACTION, LEVELS, PROBE_CLASSES, SPP_LADDER, Probe,
                           check_level, choose, psnr_from_rmse)
+from sim.io import atomic_write
 from sim.render import Renderer
 from sim.setup import Setup
 from sim.transport import TransportRenderer
@@ -116,7 +118,17 @@ def measure(setup: Setup, reference_spp: int = 1024, classes=PROBE_CLASSES,
     summary : dict
         ``reference_seconds``, ``auto`` (the :class:`~sim.fidelity.Choice` as a dict) and
         ``sentence``, the read-off of the ``auto`` choice.
+
+    Raises
+    ------
+    ProcamError
+        If ``reference_spp``, ``window``, ``repeats`` or an ``spp`` is below 1 (named with its
+        ``procam bench-sim`` option).
     """
+    for name, value in (("ref-spp", reference_spp), ("window", window), ("repeats", repeats),
+                        *(("spp", n) for n in spp)):
+        if value is not None and value < 1:
+            raise ProcamError(f"bench-sim --{name} {value}: expected an integer >= 1")
     probe = Probe(setup, classes, reference_spp, window)
     auto = choose(setup)
     rows = []
@@ -170,13 +182,13 @@ COLUMNS = ("setup", "level", "spp", "class", "seconds_per_capture", "render_seco
 
 
 def write_csv(rows: list[dict], path: Path) -> None:
-    """Write the rows of :func:`measure` (missing cells empty)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, COLUMNS)
-        w.writeheader()
-        for row in rows:
-            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+    """Write the rows of :func:`measure` (missing cells empty), atomically."""
+    text = io.StringIO(newline="")
+    w = csv.DictWriter(text, COLUMNS)
+    w.writeheader()
+    for row in rows:
+        w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+    atomic_write(path, text.getvalue())
 
 
 def plot(rows: list[dict], summary: dict, path: Path) -> None:
@@ -229,9 +241,10 @@ def plot(rows: list[dict], summary: dict, path: Path) -> None:
     axes[0].set_title(f"{setup}: speed vs accuracy of each fidelity level (numbers: spp)\n"
                       + textwrap.fill(summary["sentence"], 100), fontsize=9)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    image = io.BytesIO()
+    fig.savefig(image, format="png", dpi=120)
     plt.close(fig)
+    atomic_write(path, image.getvalue())
 
 
 def bench_sim(setup: Setup, out: Path, **options) -> dict[str, Path]:

@@ -1,20 +1,29 @@
 """Writing a dataset in the CompenNet code's folder layout (below) — atomically and resumably.
 
 ```
-DATA_ROOT/frames.json                     how the shared projector frames were made
+DATA_ROOT/.lock                           held (flock) by the one render writing the root
+DATA_ROOT/frames.json                     how the shared projector frames are made: written first
 DATA_ROOT/{ref,train,test}/img_XXXX.png   projector frames shared by all setups of the root
 DATA_ROOT/<setup>/setup.toml              the fully resolved setup
+DATA_ROOT/<setup>/render.json             how its captures are rendered: written before the first
 DATA_ROOT/<setup>/cam/{raw,warp}/{ref,train,test}/img_XXXX.png
 DATA_ROOT/<setup>/meta.json               written last: its presence marks a finished setup
 ```
-Every PNG is written to a temporary file and renamed, so a killed run leaves no truncated image;
-a re-run skips what exists and finishes the rest.
+Every input is checked before anything is written (:func:`check_render`, the projector frames
+read). Every PNG is written to a temporary file and renamed, so a killed run leaves no truncated
+image; a re-run refuses a root or setup folder whose records (``frames.json``, ``setup.toml``,
+``render.json``) differ from what it would write, rewrites any file that is damaged or missing and
+finishes the rest.
 """
 from __future__ import annotations
 
-import json
+import fcntl
+import os
+import shutil
 import time
 from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from importlib.metadata import version
 from pathlib import Path
@@ -25,13 +34,18 @@ from tqdm import tqdm
 from sim import images, registration, seeds
 from sim.capture import Simulator, capture_workers, pipelined
 from sim.errors import DatasetError, SetupError
-from sim.fidelity import describe
-from sim.io import read_png, write_json, write_png, write_text
+from sim.fidelity import check_level, check_spp, describe, resolve
+from sim.io import intact_png, read_json, remove_temporaries, write_json, write_png, write_text
 from sim.setup import Setup, dump_setup, load_setup
+from sim.variant import choose_variant
 
 N_REF = 126
 """125 plain colours (0001 black … 0125 white) and the gray surface frame 0126."""
 SURFACE_INDEX = 126
+SPLITS = ("ref", "train", "test")
+RECORD = "render.json"
+"""A setup folder's record of how its captures are rendered (:func:`check_render`'s keys plus the
+resolved ``fidelity`` and ``spp``), written before the first capture."""
 
 
 def image_name(index: int) -> str:
@@ -54,6 +68,12 @@ class FrameSpec:
     images_dir : str or None
         A folder of the user's own frames (train then test, sorted by name) instead of the
         generator.
+
+    Raises
+    ------
+    DatasetError
+        If a count or a side is below 1 or the seed is negative (named with its ``procam render``
+        option).
     """
 
     n_train: int = 500
@@ -61,6 +81,16 @@ class FrameSpec:
     size: tuple[int, int] = (256, 256)
     seed: int = 0
     images_dir: str | None = None
+
+    def __post_init__(self):
+        for name, option, value, least in (("n_train", "--n-train", self.n_train, 1),
+                                           ("n_test", "--n-test", self.n_test, 1),
+                                           ("seed", "--frame-seed", self.seed, 0),
+                                           ("width", "--size", self.size[0], 1),
+                                           ("height", "--size", self.size[1], 1)):
+            if not isinstance(value, (int, np.integer)) or value < least:
+                raise DatasetError(f"projector frames: {name} ({option}) = {value!r}: expected an "
+                                   f"integer >= {least}")
 
     def source(self) -> dict:
         """What identifies the frames (counts excluded: a larger run extends a smaller one)."""
@@ -102,32 +132,222 @@ def projector_frames(spec: FrameSpec) -> dict[str, np.ndarray]:
             "test": images.projector_frames(spec.n_test, spec.size, spec.seed, seeds.TEST_FRAMES)}
 
 
-def write_frames(root: Path, spec: FrameSpec) -> dict[str, np.ndarray]:
-    """Write (or check and extend) the shared projector frames of a root.
+def _read_frames_manifest(marker: Path) -> dict:
+    """A root's ``frames.json``, its ``source`` and ``counts`` checked.
 
     Raises
     ------
     DatasetError
-        If the root already holds frames made differently (size, seed or image folder).
+        If the file is not JSON, or a key is missing or of the wrong type (named).
     """
+    manifest = read_json(marker, "frames manifest")
+    source, counts = manifest.get("source"), manifest.get("counts")
+    try:
+        size = canonical_size(source) if isinstance(source, dict) else None
+    except (TypeError, ValueError):
+        size = None
+    if size is None:
+        raise DatasetError(f"{marker}: key 'source' = {source!r}: expected an object with the "
+                           "frames' width, height, seed and images_dir")
+    if not isinstance(counts, dict) or not all(isinstance(n, int) and n >= 0 for n in counts.values()):
+        raise DatasetError(f"{marker}: key 'counts' = {counts!r}: expected an object of frame "
+                           "counts per split")
+    return manifest
+
+
+def _check_frames_manifest(root: Path, spec: FrameSpec) -> dict | None:
+    """The root's ``frames.json`` (None if there is none yet), refused unless its frames are made
+    as ``spec`` makes them."""
     marker = root / "frames.json"
-    if marker.exists():
-        old = json.loads(marker.read_text())
-        if not _same_source(old.get("source"), spec.source()):
-            raise DatasetError(f"{marker}: this root's projector frames were made with "
-                               f"{old.get('source')}, not {spec.source()}; use another --out")
-    frames = projector_frames(spec)
+    if not marker.exists():
+        return None
+    manifest = _read_frames_manifest(marker)
+    if not _same_source(manifest["source"], spec.source()):
+        raise DatasetError(f"{marker}: this root's projector frames were made with "
+                           f"{manifest['source']}, not {spec.source()}; use another --out")
+    return manifest
+
+
+def write_frames(root: Path, spec: FrameSpec, frames: dict[str, np.ndarray]) -> None:
+    """Write (or check and extend) the shared projector frames of a root.
+
+    ``frames.json`` (source and counts) is written first, so that a run killed while writing the
+    frames leaves a record that a resumed run checks. A frame file that is damaged is written
+    again.
+
+    Parameters
+    ----------
+    root : Path
+        Dataset root.
+    spec : FrameSpec
+        How the frames are made.
+    frames : dict
+        :func:`projector_frames` of ``spec``.
+
+    Raises
+    ------
+    DatasetError
+        If the root's frames are made differently (size, seed or image folder), or a frame file
+        holds another image than the one ``spec`` makes.
+    """
+    manifest = _check_frames_manifest(root, spec)
+    counts = {k: len(v) for k, v in frames.items()}
+    if manifest is not None:
+        counts = {k: max(v, manifest["counts"].get(k, 0)) for k, v in counts.items()}
+    write_json(root / "frames.json", {"source": spec.source(), "counts": counts})
     for split, stack in frames.items():
         for i, frame in enumerate(stack, start=1):
             path = root / split / image_name(i)
-            if not path.exists():
+            old = intact_png(path, frame.shape)
+            if old is None:
                 write_png(path, frame)
-    counts = {k: len(v) for k, v in frames.items()}
-    if marker.exists():
-        old_counts = json.loads(marker.read_text()).get("counts", {})
-        counts = {k: max(v, old_counts.get(k, 0)) for k, v in counts.items()}
-    write_json(marker, {"source": spec.source(), "counts": counts})
-    return frames
+            elif not np.array_equal(old, frame):
+                raise DatasetError(f"{path}: holds another frame than {root / 'frames.json'} "
+                                   f"describes ({spec.source()}); use another --out")
+
+
+def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
+                 spp: int | None = None) -> dict:
+    """Check what a render of ``setup`` can check without writing or rendering anything.
+
+    The Mitsuba variant (``PROCAM_VARIANT``), the fidelity level and spp asked for, and that the
+    camera sees enough of the projector image (:func:`sim.registration.check_visible`).
+
+    Returns
+    -------
+    dict
+        What identifies the captures, as :data:`RECORD` holds it: ``variant``, ``width``,
+        ``height``, ``frames`` and, unless the level is ``auto`` (resolved by measuring),
+        ``fidelity`` and ``spp``.
+
+    Raises
+    ------
+    ProcamError
+        Naming the setup key, option or environment variable at fault.
+    """
+    level = fidelity or setup.render.fidelity
+    check_level(setup, level)
+    check_spp(setup, spp)
+    registration.check_visible(setup, spec.size)
+    record = {"variant": choose_variant(), "width": int(spec.size[0]), "height": int(spec.size[1]),
+              "frames": spec.source()}
+    if level != "auto":
+        choice = resolve(setup, fidelity, spp)
+        record.update(fidelity=choice.level, spp=choice.spp)
+    return record
+
+
+def _read_record(path: Path) -> dict:
+    """The :data:`RECORD` keys of a ``render.json`` (or of the ``meta.json`` of a setup rendered
+    before render.json was written), a size of the older form as ``width`` and ``height``.
+
+    Raises
+    ------
+    DatasetError
+        If the file is not JSON, or a key is missing or of the wrong type (named).
+    """
+    data = read_json(path, "render record")
+    try:
+        size = canonical_size(data)
+    except (TypeError, ValueError):
+        size = None
+    if size is None:
+        raise DatasetError(f"{path}: keys 'width', 'height' = {data.get('width')!r}, "
+                           f"{data.get('height')!r}: expected the canonical size in pixels")
+    for key, kind, what in (("variant", str, "a Mitsuba variant"), ("fidelity", str, "a level"),
+                            ("spp", int, "samples per pixel"), ("frames", dict, "the frames' source")):
+        if not isinstance(data.get(key), kind):
+            raise DatasetError(f"{path}: key {key!r} = {data.get(key)!r}: expected {what}")
+    return {"variant": data["variant"], "fidelity": data["fidelity"], "spp": data["spp"],
+            "width": size[0], "height": size[1], "frames": data["frames"]}
+
+
+def _differences(path: Path, record: dict, expected: dict) -> list[str]:
+    """What in a setup's record differs from what this render would write (empty: nothing), as
+    one message naming the file and each key."""
+    keys = [key for key, value in expected.items()
+            if not (_same_source(record[key], value) if key == "frames" else record[key] == value)]
+    if not keys:
+        return []
+    return [f"{path}: the captures were rendered with " + ", ".join(
+        f"{key} = {record[key]!r} (this render: {expected[key]!r})" for key in keys)]
+
+
+def _meta_counts(meta_file: Path) -> dict[str, int]:
+    """The captures per split a finished setup's ``meta.json`` lists.
+
+    Raises
+    ------
+    DatasetError
+        If the file is not JSON or its ``counts`` is not an object of counts (named).
+    """
+    counts = read_json(meta_file, "setup metadata").get("counts")
+    if not isinstance(counts, dict) or not all(isinstance(n, int) for n in counts.values()):
+        raise DatasetError(f"{meta_file}: key 'counts' = {counts!r}: expected an object of "
+                           "capture counts per split; delete the file to finish the render again")
+    return counts
+
+
+def _same_setup(setup_file: Path, setup: Setup) -> bool:
+    """True when ``setup_file`` exists and reads back to ``setup`` (whatever its formatting)."""
+    if not setup_file.exists():
+        return False
+    try:
+        return load_setup(setup_file) == setup
+    except SetupError:
+        return False
+
+
+def _changes(out: Path, setup: Setup, expected: dict) -> list[str]:
+    """Why the captures in a setup folder cannot be resumed by this render (empty: they can)."""
+    setup_file = out / "setup.toml"
+    changes = []
+    if setup_file.exists() and not _same_setup(setup_file, setup):
+        changes.append(f"{setup_file}: the folder holds captures of a different setup")
+    record_file = next((f for f in (out / RECORD, out / "meta.json") if f.exists()), None)
+    if record_file is not None:
+        changes += _differences(record_file, _read_record(record_file), expected)
+    elif (out / "cam").exists():
+        changes.append(f"{out / 'cam'}: captures without a record ({RECORD}) of how they were rendered")
+    return changes
+
+
+def _clear(out: Path) -> None:
+    """Remove a setup folder's captures and records (the transport cache, keyed by setup, spp and
+    variant, stays). ``meta.json`` goes first and the record last, so that a run killed here
+    leaves a folder that is unfinished and still refused without ``--overwrite``."""
+    (out / "meta.json").unlink(missing_ok=True)
+    if (out / "cam").exists():
+        shutil.rmtree(out / "cam")
+    (out / RECORD).unlink(missing_ok=True)
+
+
+@contextmanager
+def root_lock(root: Path) -> Iterator[None]:
+    """Hold ``root/.lock`` (an exclusive ``flock``, released when the process ends however it ends)
+    while writing a dataset root; the root is created if needed.
+
+    Raises
+    ------
+    DatasetError
+        If the root cannot be created or written, or another process holds the lock.
+    """
+    lock = root / ".lock"
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as exc:
+        raise DatasetError(f"{root}: cannot write the dataset root ({exc.strerror or exc}); "
+                           "choose another --out") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise DatasetError(f"{lock}: another procam process is writing this dataset root; "
+                               "wait for it to finish or choose another --out") from None
+        yield
+    finally:
+        os.close(fd)
 
 
 def _finish_capture(sim: Simulator, radiance: np.ndarray | None, raw: np.ndarray | None, stream: int,
@@ -152,19 +372,15 @@ def _finish_capture(sim: Simulator, radiance: np.ndarray | None, raw: np.ndarray
     return seconds
 
 
-def _same_setup(setup_file: Path, setup: Setup) -> bool:
-    """True when ``setup_file`` exists and reads back to ``setup`` (whatever its formatting)."""
-    if not setup_file.exists():
-        return False
-    try:
-        return load_setup(setup_file) == setup
-    except SetupError:
-        return False
-
-
 def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None = None,
                 spp: int | None = None, progress: bool = True, overwrite: bool = False) -> Path:
     """Render one setup into ``root/<setup.name>`` (resuming an interrupted run).
+
+    Nothing is written before every input is checked (:func:`check_render`, the projector frames
+    made or read). Under the root's lock (:func:`root_lock`) the root's and the folder's records
+    are compared with this render; then ``frames.json`` and :data:`RECORD` are written before the
+    files they describe, and a capture is kept only if its file is intact
+    (:func:`sim.io.intact_png`).
 
     Parameters
     ----------
@@ -180,51 +396,85 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
     progress : bool
         Show a progress bar with captures per second.
     overwrite : bool
-        Allow replacing a setup folder rendered from a different setup file.
+        Re-render a setup folder whose captures were rendered from another setup file, Mitsuba
+        variant, fidelity, spp, size or frames, instead of refusing it.
 
     Returns
     -------
     Path
         The setup folder.
+
+    Raises
+    ------
+    ProcamError
+        If an input is refused (:func:`check_render`, :func:`projector_frames`), another process
+        writes the root, the root's frames differ, or (without ``overwrite``) the setup folder
+        holds captures rendered differently; the message names the file or key.
     """
     root = Path(root)
     out = root / setup.name
-    setup_file = out / "setup.toml"
-    same_setup = _same_setup(setup_file, setup)
-    if setup_file.exists() and not same_setup and not overwrite:
-        raise DatasetError(f"{setup_file}: the folder holds captures of a different setup; "
-                           "choose another --out or pass --overwrite")
-    frames = write_frames(root, spec)
+    expected = check_render(setup, spec, fidelity, spp)
+    frames = projector_frames(spec)
     counts = {k: len(v) for k, v in frames.items()}
-    meta_file = out / "meta.json"
-    if meta_file.exists():
-        meta = json.loads(meta_file.read_text())
-        if same_setup and canonical_size(meta) == tuple(spec.size) and all(
-                meta.get("counts", {}).get(k, 0) >= n for k, n in counts.items()):
+    with root_lock(root):
+        _check_frames_manifest(root, spec)
+        changes = _changes(out, setup, expected)
+        if changes and not overwrite:
+            raise DatasetError("; ".join(changes) + "; choose another --out or pass --overwrite to "
+                               "render it again")
+        meta_file = out / "meta.json"
+        if not changes and meta_file.exists() and all(
+                _meta_counts(meta_file).get(k, 0) >= n for k, n in counts.items()):
+            write_frames(root, spec, frames)
             return out
-        meta_file.unlink()  # more captures asked for, or a different setup: no longer finished
-    write_text(setup_file, dump_setup(setup))
+        for folder in (*(root / split for split in SPLITS), out):
+            remove_temporaries(folder)
+        if changes:
+            _clear(out)
+        meta_file.unlink(missing_ok=True)  # more captures asked for: no longer finished
+        write_frames(root, spec, frames)
+        write_text(out / "setup.toml", dump_setup(setup))
+        return _render(out, setup, spec, frames, fidelity, spp, expected, overwrite, progress)
 
-    todo = [(split, i) for split, stack in frames.items() for i in range(1, len(stack) + 1)
-            if not all((out / "cam" / kind / split / image_name(i)).exists() for kind in ("raw", "warp"))]
+
+def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarray],
+            fidelity: str | None, spp: int | None, expected: dict, overwrite: bool,
+            progress: bool) -> Path:
+    """The captures a setup folder lacks, then its ``meta.json`` (see :func:`write_setup`)."""
+    counts = {k: len(v) for k, v in frames.items()}
     t_start = time.perf_counter()
     sim = Simulator(setup, spec.size, fidelity, spp, cache_dir=out / "cache")
+    record = {**expected, "fidelity": sim.choice.level, "spp": sim.choice.spp}
+    if (out / RECORD).exists():  # ``auto``: the resolved level and spp are known only now
+        if changes := _differences(out / RECORD, _read_record(out / RECORD), record):
+            if not overwrite:
+                raise DatasetError("; ".join(changes) + "; choose another --out or pass "
+                                   "--overwrite to render it again")
+            _clear(out)
+    write_json(out / RECORD, record)
+
+    w, h = spec.size
+    raw_shape, warp_shape = (*setup.camera.resolution[::-1], 3), (h, w, 3)
+
+    def files(split: str, i: int) -> tuple[Path, Path]:
+        return (out / "cam" / "raw" / split / image_name(i), out / "cam" / "warp" / split / image_name(i))
+
+    todo = [(split, i) for split, stack in frames.items() for i in range(1, len(stack) + 1)
+            if intact_png(files(split, i)[1], warp_shape) is None
+            or intact_png(files(split, i)[0], raw_shape) is None]
     workers = capture_workers()
     finish_seconds: dict[str, float] = defaultdict(float)
 
     def render(job: tuple[str, int]) -> tuple[np.ndarray | None, np.ndarray | None]:
         split, i = job
-        raw_file = out / "cam" / "raw" / split / image_name(i)
         t0 = time.perf_counter()
-        raw = read_png(raw_file) if raw_file.exists() else None  # written atomically: complete
+        raw = intact_png(files(split, i)[0], raw_shape)
         finish_seconds["png"] += time.perf_counter() - t0
         return (sim.linear(frames[split][i - 1], seeds.STREAMS[split], i) if raw is None else None), raw
 
     def finish(job: tuple[str, int], rendered) -> dict[str, float]:
         split, i = job
-        return _finish_capture(sim, *rendered, seeds.STREAMS[split], i,
-                               out / "cam" / "raw" / split / image_name(i),
-                               out / "cam" / "warp" / split / image_name(i))
+        return _finish_capture(sim, *rendered, seeds.STREAMS[split], i, *files(split, i))
 
     with tqdm(total=len(todo), desc=f"render {setup.name}", unit="capture", disable=not progress) as bar:
         for seconds in pipelined(todo, render, finish, workers):
@@ -266,5 +516,5 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
                          "visible_fraction": float(sim.warp_map.mask.mean()),
                          "homography": homography},
     }
-    write_json(meta_file, meta)
+    write_json(out / "meta.json", meta)
     return out

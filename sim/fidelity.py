@@ -85,6 +85,13 @@ def check_level(setup: Setup, level: str) -> None:
             f'a depth >= 3 for the inter-reflection of surface.geometry = "{setup.surface.geometry}"')
 
 
+def check_spp(setup: Setup, spp: int | None) -> None:
+    """Raise :class:`SetupError` unless ``spp`` (an override of ``render.spp``) is None or >= 1."""
+    if spp is not None and spp < 1:
+        raise SetupError(f"setup {setup.name!r}: spp (--spp) = {spp}: expected samples per pixel "
+                         ">= 1")
+
+
 def describe(setup: Setup, level: str) -> str:
     """How a level renders, for meta.json, e.g. ``"path (max_depth 3)"``."""
     if level == "path":
@@ -469,10 +476,11 @@ def resolve(setup: Setup, fidelity: str | None = None, spp: int | None = None,
     Raises
     ------
     SetupError
-        If the level cannot represent the setup (:func:`check_level`).
+        If the level cannot represent the setup (:func:`check_level`) or ``spp`` is below 1.
     """
     level = fidelity or setup.render.fidelity
     check_level(setup, level)
+    check_spp(setup, spp)
     if level == "auto":
         return choose(setup, spp, n_captures)
     return Choice(level, int(spp or setup.render.spp), "asked for" + (

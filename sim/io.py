@@ -3,7 +3,8 @@
 Every file procam writes goes through :func:`atomic_write`: the content lands in a uniquely named
 temporary file beside the destination, which is then renamed over it, so a reader (or a resumed
 run) never sees a truncated file, even when the writer is killed. Files get the permissions the
-process umask allows (as ``open`` would give them), not ``mkstemp``'s 0600.
+process umask allows (as ``open`` would give them): the temporary file is created with mode 0666,
+which the kernel masks, so no thread ever changes the process umask.
 
 >>> import tempfile, pathlib
 >>> folder = pathlib.Path(tempfile.mkdtemp())
@@ -19,23 +20,17 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
-import threading
+import secrets
 from pathlib import Path
 
 import numpy as np
 
 from sim.errors import DatasetError
 
-_UMASK_LOCK = threading.Lock()
-
-
-def _umask() -> int:
-    """The process umask (read by setting and restoring it, under a lock)."""
-    with _UMASK_LOCK:
-        mask = os.umask(0)
-        os.umask(mask)
-    return mask
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+"""The last 12 bytes of every PNG file: the empty ``IEND`` chunk and its CRC."""
+TEMP_SUFFIX = ".tmp"
+"""Suffix of :func:`atomic_write`'s temporary files (``.<name>.<random>.tmp``)."""
 
 
 def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
@@ -58,15 +53,28 @@ def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    while True:
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}{TEMP_SUFFIX}"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            break
+        except FileExistsError:
+            continue
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data.encode() if isinstance(data, str) else data)
-        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
+
+
+def remove_temporaries(folder: str | os.PathLike) -> None:
+    """Delete the temporary files that killed :func:`atomic_write` calls left in ``folder`` and
+    below (``.<name>.<random>.tmp``). Only safe while no other process writes there."""
+    for tmp in Path(folder).rglob(f".*{TEMP_SUFFIX}"):
+        if tmp.is_file():
+            tmp.unlink(missing_ok=True)
 
 
 def write_text(path: str | os.PathLike, text: str) -> None:
@@ -123,12 +131,14 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
         If the file is missing or cannot be decoded.
     """
     import imageio.v3 as iio
+    from PIL.Image import DecompressionBombError
 
     path = Path(path)
     try:
         img = iio.imread(path)
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"{path}: cannot read image ({exc})") from None
+    except (OSError, ValueError, SyntaxError, DecompressionBombError) as exc:  # Pillow's errors
+        reason = (str(exc).splitlines() or [type(exc).__name__])[0]  # not imageio's install hints
+        raise DatasetError(f"{path}: cannot read image ({reason})") from None
     if img.dtype != np.uint8:
         if img.dtype == np.uint16:
             img = (img.astype(np.float64) / 257.0).round().astype(np.uint8)
@@ -141,6 +151,37 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
     elif img.ndim != 3 or img.shape[2] != 3:
         raise DatasetError(f"{path}: expected an RGB image, found shape {img.shape}")
     return np.ascontiguousarray(img)
+
+
+def intact_png(path: str | os.PathLike, shape: tuple[int, ...]) -> np.ndarray | None:
+    """A PNG that :func:`write_png` wrote, or None unless it is complete and of ``shape``.
+
+    A file truncated or damaged after it was written (it lacks the final ``IEND`` chunk, fails
+    to decode or has another size) gives None, so that a resumed run writes it again.
+
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "img.png"
+    >>> write_png(path, np.zeros((2, 3, 3), np.uint8))
+    >>> intact_png(path, (2, 3, 3)).shape, intact_png(path, (3, 2, 3))
+    ((2, 3, 3), None)
+    >>> path.write_bytes(path.read_bytes()[:-1]) and intact_png(path, (2, 3, 3)) is None
+    True
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - len(_PNG_END)))
+            complete = f.read() == _PNG_END
+    except OSError:
+        return None
+    if not complete:
+        return None
+    try:
+        image = read_png(path)
+    except DatasetError:
+        return None
+    return image if image.shape == tuple(shape) else None
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:

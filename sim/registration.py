@@ -19,7 +19,15 @@ import cv2
 import numpy as np
 
 from sim import geometry, surfaces
+from sim.errors import SetupError
 from sim.setup import Setup
+
+MIN_VISIBLE_FRACTION = 0.5
+"""Least fraction of the canonical projector pixels that must land on the surface and be seen by
+the camera for a setup to be rendered (:func:`check_visible`). Unseen pixels are black in every
+warped capture: below one half, most of each training pair carries no signal and the metrics are
+dominated by pixels no compensation can change. The shipped scenes see all of them; a projector
+image that deliberately spills over an edge of the surface or the camera frame is still allowed."""
 
 
 @dataclass(frozen=True)
@@ -68,6 +76,37 @@ def exact_map(setup: Setup, size: tuple[int, int]) -> WarpMap:
     unoccluded = np.abs(tc - dist) <= 1e-6 + 1e-5 * dist
     inside = (xy[..., 0] >= 0) & (xy[..., 0] <= cam.width) & (xy[..., 1] >= 0) & (xy[..., 1] <= cam.height)
     return WarpMap(xy.astype(np.float32), hit & facing & in_front & unoccluded & inside)
+
+
+def check_visible(setup: Setup, size: tuple[int, int]) -> float:
+    """Refuse a setup whose camera would capture too little of the projector image.
+
+    Parameters
+    ----------
+    setup : Setup
+        The setup.
+    size : (int, int)
+        Canonical (width, height) in pixels.
+
+    Returns
+    -------
+    float
+        The fraction of canonical pixels lit on the surface and seen by the camera
+        (:attr:`WarpMap.mask` of :func:`exact_map`).
+
+    Raises
+    ------
+    SetupError
+        If that fraction is below :data:`MIN_VISIBLE_FRACTION`; the message gives it.
+    """
+    fraction = float(exact_map(setup, size).mask.mean())
+    if fraction < MIN_VISIBLE_FRACTION:
+        raise SetupError(
+            f'setup "{setup.name}": only {fraction:.1%} of the projector image lands on the surface '
+            f"and is seen by the camera (at least {MIN_VISIBLE_FRACTION:.0%} needed: the rest of "
+            "every capture would be black); aim projector.position/look_at at the surface and "
+            "camera.position/look_at/fov at the projected area")
+    return fraction
 
 
 def warp(image: np.ndarray, wmap: WarpMap) -> np.ndarray:

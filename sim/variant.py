@@ -7,8 +7,11 @@ each candidate is first tried in a child process: a tiny ``dr.minimum`` kernel a
 
 ``cuda_ad_rgb`` (a GPU is present) → ``llvm_ad_rgb`` → ``scalar_rgb`` (with a warning).
 
-Set ``PROCAM_VARIANT`` to skip the probe and force a variant. After the probe the choice is
-exported in ``PROCAM_VARIANT`` so that child processes (workers, CLI calls from tests) inherit it.
+Set ``PROCAM_VARIANT`` to skip the probe and force a variant: an RGB variant (procam's textures,
+projector frames and camera are RGB) whose Dr.Jit backend this machine has (a CUDA driver and GPU
+for ``cuda_*``, the LLVM library for ``llvm_*``); anything else is refused with a
+:class:`~sim.errors.ProcamError`. After the probe the choice is exported in ``PROCAM_VARIANT`` so
+that child processes (workers, CLI calls from tests) inherit it.
 
 ``python -m sim.variant --ensure-llvm`` installs ``libllvm19`` with apt-get when running as root
 and the LLVM backend is not usable (used by the Makefile).
@@ -22,6 +25,8 @@ import shutil
 import subprocess
 import sys
 import warnings
+
+from sim.errors import ProcamError
 
 ENV_VAR = "PROCAM_VARIANT"
 CANDIDATES = ("cuda_ad_rgb", "llvm_ad_rgb")
@@ -55,16 +60,47 @@ def probe(variant: str, timeout: float = 120.0) -> bool:
     return proc.returncode == 0
 
 
+def check_forced(name: str) -> None:
+    """Refuse a ``PROCAM_VARIANT`` that procam cannot render with.
+
+    Raises
+    ------
+    ProcamError
+        If ``name`` is not a Mitsuba variant, not an RGB one, or its Dr.Jit backend (CUDA, LLVM)
+        is missing on this machine.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    usable = ", ".join(v for v in mi.variants() if v.endswith("_rgb"))
+    if name not in mi.variants():
+        raise ProcamError(f"{ENV_VAR}={name!r}: not a Mitsuba variant; expected one of {usable} "
+                          "(or leave it unset to choose automatically)")
+    if not name.endswith("_rgb"):
+        raise ProcamError(f"{ENV_VAR}={name!r}: procam renders RGB (textures, projector frames and "
+                          f"camera are RGB); expected one of {usable}")
+    backend, needs = {"cuda": (dr.JitBackend.CUDA, "a CUDA GPU and driver"),
+                      "llvm": (dr.JitBackend.LLVM, "the LLVM library")}.get(name.split("_")[0], (None, ""))
+    if backend is not None and not dr.has_backend(backend):
+        raise ProcamError(f"{ENV_VAR}={name!r}: Dr.Jit's {backend.name} backend is not available "
+                          f"here (it needs {needs}); use another of {usable} or leave it unset to "
+                          "choose automatically")
+
+
 @functools.cache
 def choose_variant() -> str:
-    """Pick the Mitsuba variant for this process (memoised) and export it in ``PROCAM_VARIANT``."""
+    """Pick the Mitsuba variant for this process (memoised) and export it in ``PROCAM_VARIANT``.
+
+    Raises
+    ------
+    ProcamError
+        If ``PROCAM_VARIANT`` forces a variant procam cannot use (:func:`check_forced`).
+    """
     import mitsuba as mi
 
     forced = os.environ.get(ENV_VAR)
     if forced:
-        if forced not in mi.variants():
-            raise ValueError(f"{ENV_VAR}={forced!r} is not a Mitsuba variant; "
-                             f"expected one of {', '.join(mi.variants())}")
+        check_forced(forced)
         return forced
     chosen = next((v for v in CANDIDATES if v in mi.variants() and probe(v)), None)
     if chosen is None:

@@ -31,7 +31,7 @@ def read_toml(path: Path | str) -> dict:
             return tomllib.load(f)
     except OSError as exc:
         raise SetupError(f"{path}: cannot read setup file ({exc.strerror or exc})") from None
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:  # TOML is UTF-8
         raise SetupError(f"{path}: not valid TOML ({exc})") from None
 
 

@@ -2,7 +2,7 @@
 
 Everything is checked here, before any rendering: unknown keys or sections, wrong types (a bool
 is not a number; an int is accepted where a float is expected), vector lengths, ranges, missing
-texture files, unknown camera responses and inconsistent combinations raise
+or undecodable texture files, unknown camera responses and inconsistent combinations raise
 :class:`~sim.errors.SetupError` naming the file, the dotted key and what was expected, e.g.
 ``scenes/bad.toml: camera.fov = -5.0: expected a number in (1, 120) degrees``. Every key but
 ``name`` is optional and takes the dataclass default of :mod:`sim.setup.schema`.
@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from sim import images, surfaces
-from sim.errors import SetupError
+from sim.errors import DatasetError, SetupError
+from sim.io import read_png
 from sim.setup.schema import (NAME_PATTERN, SECTIONS, TEMPERATURE_RANGE, AmbientConfig, CameraConfig,
                               ProjectorConfig, RenderConfig, Setup, SurfaceConfig, temperature_rgb)
 
@@ -173,6 +174,10 @@ def _texture(t: _Table, base_dir: Path) -> str:
     if path.suffix.lower() not in images.IMAGE_SUFFIXES:
         raise t.error("texture", value, f"expected an image file ({', '.join(images.IMAGE_SUFFIXES)}); "
                                         f"got {path}")
+    try:
+        read_png(path)
+    except DatasetError as exc:
+        raise t.error("texture", value, f"expected an 8-bit RGB image file; {exc}") from None
     return str(path)
 
 

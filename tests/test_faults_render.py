@@ -1,0 +1,393 @@
+"""Fault injection into `procam render` and `procam bench-sim`: hostile inputs are refused before
+anything is written, with a message naming the file, key or value and no traceback; a render
+killed (SIGKILL) at any point resumes to the bytes of an uninterrupted run; a resume trusts no
+file or record it cannot check."""
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from compensation.cli import main
+from sim import registration
+from sim.errors import ProcamError
+from sim.io import read_png, write_png
+from sim.variant import check_forced
+
+REPO = Path(__file__).resolve().parents[1]
+SETUP = """
+name = "tiny"
+[surface]
+texture = {texture}
+texture_resolution = 64
+[projector]
+resolution = [64, 64]
+look_at = {projector_look_at}
+[camera]
+resolution = [64, 64]
+look_at = {camera_look_at}
+[render]
+fidelity = "direct"
+spp = 4
+ambient_spp = 16
+seed = {seed}
+"""
+ARGS = ["--size", "32", "--n-train", "2", "--n-test", "1", "--quiet"]
+VOLATILE = ("timings_s", "captures_per_second", "captures_this_run")
+"""meta.json keys that differ between two runs of the same render."""
+
+
+def _setup_file(folder: Path, name: str = "tiny.toml", seed: int = 0, texture: str = '"noise"',
+                projector_look_at: str = "[0.0, 0.0, 0.0]", camera_look_at: str = "[0.0, 0.0, 0.0]") -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / name
+    path.write_text(SETUP.format(seed=seed, texture=texture, projector_look_at=projector_look_at,
+                                 camera_look_at=camera_look_at))
+    return path
+
+
+def _snapshot(root: Path) -> dict[str, bytes]:
+    """Every file under ``root`` (relative path -> bytes)."""
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _assert_same_dataset(root: Path, reference: Path) -> None:
+    """The same files with the same bytes, meta.json up to its timings."""
+    got, want = _snapshot(root), _snapshot(reference)
+    assert sorted(got) == sorted(want)
+    for name in want:
+        if name.endswith("meta.json"):
+            a, b = json.loads(got[name]), json.loads(want[name])
+            assert {k: v for k, v in a.items() if k not in VOLATILE} == \
+                   {k: v for k, v in b.items() if k not in VOLATILE}, name
+        else:
+            assert got[name] == want[name], name
+
+
+def _refused(capsys, argv: list[str], *fragments: str) -> str:
+    """Run the CLI in this process: exit status 2, the message holds every fragment."""
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    for fragment in fragments:
+        assert fragment in err, (fragment, err)
+    return err
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": str(REPO), "OMP_WAIT_POLICY": "PASSIVE"}
+
+
+KILLER = """
+import itertools, os, signal, sys
+from pathlib import Path
+import sim.io
+
+pattern, nth, argv = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
+write, calls = sim.io.atomic_write, itertools.count(1)
+
+def atomic_write(path, data):
+    path = Path(path)
+    if path.match(pattern) and next(calls) == nth:  # die half-way through writing this file
+        path.parent.mkdir(parents=True, exist_ok=True)
+        part = data.encode() if isinstance(data, str) else data
+        (path.parent / f".{path.name}.killed.tmp").write_bytes(part[:len(part) // 2])
+        os.kill(os.getpid(), signal.SIGKILL)
+    write(path, data)
+
+sim.io.atomic_write = atomic_write
+from compensation.cli import main
+sys.exit(main(argv))
+"""
+
+
+def _killed_render(argv: list[str], pattern: str, nth: int = 1) -> None:
+    """`procam render` in a child process (umask 027) killed with SIGKILL while writing the
+    ``nth`` file whose path matches ``pattern``."""
+    proc = subprocess.run([sys.executable, "-c", KILLER, pattern, str(nth), *argv], env=_env(),
+                          capture_output=True, text=True, preexec_fn=lambda: os.umask(0o027))
+    assert proc.returncode == -9, proc.stderr
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """An uninterrupted render of the tiny setup: its root folder (the setup file beside it)."""
+    tmp = tmp_path_factory.mktemp("reference")
+    assert main(["render", str(_setup_file(tmp)), "--out", str(tmp / "data"), *ARGS]) == 0
+    return tmp / "data"
+
+
+def _copy(reference: Path, tmp_path: Path) -> Path:
+    root = tmp_path / "data"
+    shutil.copytree(reference, root)
+    return root
+
+
+# --------------------------------------------------------------- setups that capture nothing useful
+
+@pytest.mark.parametrize("pose", [{"projector_look_at": "[4.0, 0.0, 0.5]"},  # projector aimed away
+                                  {"camera_look_at": "[3.0, 0.0, 0.0]"}])  # camera aimed away
+def test_setup_that_sees_no_projection_is_refused_before_rendering(tmp_path, capsys, pose):
+    setup = _setup_file(tmp_path, **pose)
+    _refused(capsys, ["render", str(setup), "--out", str(tmp_path / "data"), *ARGS],
+             'setup "tiny"', "only 0.0% of the projector image", "at least 50%", "look_at")
+    assert not (tmp_path / "data").exists()
+
+
+def test_every_setup_of_a_suite_is_checked_before_the_first_is_rendered(tmp_path, capsys):
+    _setup_file(tmp_path)
+    suite = tmp_path / "suite.toml"
+    suite.write_text('base = "tiny.toml"\n[[setup]]\nname = "good"\n[[setup]]\nname = "away"\n'
+                     "projector = { look_at = [4.0, 0.0, 0.5] }\n")
+    _refused(capsys, ["render", str(suite), "--out", str(tmp_path / "data"), *ARGS], 'setup "away"')
+    assert not (tmp_path / "data").exists()
+
+
+def test_shipped_setups_see_the_whole_projection():
+    from sim.setup import load_setups
+
+    assert registration.check_visible(load_setups("default")[0], (32, 32)) == 1.0
+
+
+# ------------------------------------------------------------- inputs checked before anything is written
+
+def _bad_texture(tmp_path: Path, content: bytes) -> list[str]:
+    (tmp_path / "tex.png").write_bytes(content)
+    return [str(_setup_file(tmp_path, texture='"tex.png"'))]
+
+
+def _image_folder(tmp_path: Path, broken: bool) -> list[str]:
+    folder = tmp_path / "frames"
+    for name in ("a.png", "b.png") + (("c.png",) if broken else ()):
+        write_png(folder / name, np.full((8, 8, 3), 100, np.uint8))
+    if broken:
+        (folder / "c.png").write_bytes((folder / "c.png").read_bytes()[:10])
+    return [str(_setup_file(tmp_path)), "--images", str(folder)]
+
+
+def _latin1_setup(tmp_path: Path) -> list[str]:
+    path = tmp_path / "latin.toml"
+    path.write_bytes('name = "café"\n'.encode("latin-1"))
+    return [str(path)]
+
+
+BAD_INPUTS = {
+    "texture that is text": (lambda t: _bad_texture(t, b"not an image"),
+                             ["tiny.toml", 'surface.texture = "tex.png"', "cannot read image"]),
+    "texture cut after its header": (lambda t: _bad_texture(t, b"\x89PNG\r\n\x1a\n\x00\x00"),
+                                     ["tiny.toml", 'surface.texture = "tex.png"', "tex.png"]),
+    "--images with a damaged file": (lambda t: _image_folder(t, broken=True),
+                                     ["c.png", "cannot read image"]),
+    "--images with too few files": (lambda t: _image_folder(t, broken=False),
+                                    ["frames", "found 2 image files", "need 3"]),
+    "--n-train -5": (lambda t: [str(_setup_file(t)), "--n-train", "-5"], ["--n-train", "-5", ">= 1"]),
+    "--n-test 0": (lambda t: [str(_setup_file(t)), "--n-test", "0"], ["--n-test", "0", ">= 1"]),
+    "--frame-seed -1": (lambda t: [str(_setup_file(t)), "--frame-seed", "-1"], ["--frame-seed", "-1"]),
+    "--spp 0": (lambda t: [str(_setup_file(t)), "--spp", "0"], ["--spp", "= 0", ">= 1"]),
+    "--fidelity direct on a corner": (lambda t: ["corner", "--fidelity", "direct"],
+                                      ['fidelity "direct"', "inter-reflection"]),
+    "setup file not UTF-8": (lambda t: _latin1_setup(t), ["latin.toml", "not valid TOML"]),
+}
+
+
+@pytest.mark.parametrize("case", BAD_INPUTS)
+def test_bad_input_is_refused_and_writes_nothing(tmp_path, capsys, case):
+    make, fragments = BAD_INPUTS[case]
+    argv = make(tmp_path)
+    _refused(capsys, ["render", argv[0], "--out", str(tmp_path / "data"), *ARGS, *argv[1:]], *fragments)
+    assert not (tmp_path / "data").exists()
+
+
+def test_output_root_that_is_a_file_is_refused(tmp_path, capsys):
+    (tmp_path / "data").write_text("a file")
+    _refused(capsys, ["render", str(_setup_file(tmp_path)), "--out", str(tmp_path / "data"), *ARGS],
+             str(tmp_path / "data"), "cannot write the dataset root")
+    assert (tmp_path / "data").read_text() == "a file"
+
+
+@pytest.mark.parametrize("option", [["--window", "0"], ["--repeats", "0"], ["--ref-spp", "0"],
+                                    ["--spp", "4,0"]])
+def test_bench_sim_refuses_options_below_one(tmp_path, capsys, option):
+    argv = ["bench-sim", str(_setup_file(tmp_path)), "--out", str(tmp_path / "bench"), "--quiet",
+            "--classes", "smooth", "--ref-spp", "4", "--spp", "1", *option]
+    if option[0] == "--spp":
+        with pytest.raises(SystemExit) as exit_:  # an argparse type: usage and the value
+            main(argv)
+        assert exit_.value.code == 2 and "'4,0'" in capsys.readouterr().err
+    else:
+        _refused(capsys, argv, f"{option[0]} 0", ">= 1")
+    assert not (tmp_path / "bench").exists()
+
+
+@pytest.mark.parametrize("name, fragment", [("bogus", "not a Mitsuba variant"),
+                                            ("scalar_spectral", "procam renders RGB"),
+                                            ("llvm_ad_mono", "procam renders RGB")])
+def test_unusable_variant_is_refused(name, fragment):
+    with pytest.raises(ProcamError, match=f"PROCAM_VARIANT='{name}': {fragment}"):
+        check_forced(name)
+
+
+def test_cuda_variant_without_a_gpu_is_refused():
+    import drjit as dr
+
+    if dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("a CUDA device is present")
+    with pytest.raises(ProcamError, match="CUDA backend is not available here"):
+        check_forced("cuda_ad_rgb")
+
+
+def test_bad_variant_from_the_command_line(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "compensation.cli", "render", str(_setup_file(tmp_path)),
+                           "--out", str(tmp_path / "data"), *ARGS],
+                          env={**_env(), "PROCAM_VARIANT": "bogus"}, capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "PROCAM_VARIANT='bogus'" in proc.stderr and "llvm_ad_rgb" in proc.stderr
+    assert not (tmp_path / "data").exists()
+
+
+# ------------------------------------------------------------------------ kill -9, resume, same bytes
+
+def test_killed_at_every_stage_resumes_to_the_same_bytes(reference, tmp_path, capsys):
+    root = tmp_path / "data"
+    argv = ["render", str(_setup_file(tmp_path)), "--out", str(root), *ARGS]
+    _killed_render(argv, "data/ref/img_*.png", nth=5)  # while writing the shared frames
+    assert json.loads((root / "frames.json").read_text())["source"]["seed"] == 0  # written first
+    assert not (root / "tiny").exists()
+    # resumed with another frame seed: refused, nothing touched
+    before = _snapshot(root)
+    _refused(capsys, [*argv, "--frame-seed", "7"], str(root / "frames.json"), "'seed': 0", "'seed': 7")
+    assert _snapshot(root) == before
+    _killed_render(argv, "raw/*/img_*.png", nth=10)  # while writing captures
+    assert (root / "tiny" / "render.json").exists() and not (root / "tiny" / "meta.json").exists()
+    _killed_render(argv, "meta.json")  # while writing the record of a finished setup
+    assert list(root.rglob(".*.tmp")) and not (root / "tiny" / "meta.json").exists()
+    assert main(argv) == 0
+    _assert_same_dataset(root, reference)  # leftover temporary files removed too
+    for path in [root, *root.rglob("*")]:  # all but meta.json written under umask 027
+        assert path.name == "meta.json" or path.stat().st_mode & 0o027 == 0, path
+
+
+def test_damaged_files_are_written_again(reference, tmp_path):
+    root = _copy(reference, tmp_path)
+    (root / "tiny" / "meta.json").unlink()  # an unfinished setup
+    for rel, keep in (("tiny/cam/raw/train/img_0001.png", 0.5), ("tiny/cam/warp/test/img_0001.png", -1),
+                      ("train/img_0002.png", 0.3), ("tiny/cam/warp/ref/img_0126.png", 0)):
+        path = root / rel
+        data = path.read_bytes()
+        path.write_bytes(data[:keep] if keep <= 0 else data[:int(len(data) * keep)])
+    write_png(root / "tiny/cam/raw/ref/img_0002.png", np.zeros((5, 5, 3), np.uint8))  # wrong size
+    assert main(["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS]) == 0
+    _assert_same_dataset(root, reference)
+
+
+def test_frame_of_another_source_is_refused(reference, tmp_path, capsys):
+    root = _copy(reference, tmp_path)
+    shutil.copy(root / "ref" / "img_0001.png", root / "train" / "img_0001.png")
+    before = _snapshot(root)
+    _refused(capsys, ["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS],
+             str(root / "train" / "img_0001.png"), "another frame")
+    assert _snapshot(root) == before
+
+
+# ------------------------------------------------------------------------------ records checked on resume
+
+def _edit_json(path: Path, **changes) -> None:
+    path.write_text(json.dumps({**json.loads(path.read_text()), **changes}))
+
+
+@pytest.mark.parametrize("finished", [False, True])
+def test_resume_under_another_variant_is_refused(reference, tmp_path, capsys, finished):
+    """A setup started (or finished) under another Mitsuba variant: refused, nothing touched."""
+    root = _copy(reference, tmp_path)
+    if not finished:
+        (root / "tiny" / "meta.json").unlink()
+    for name in ("render.json", "meta.json"):
+        if (root / "tiny" / name).exists():
+            _edit_json(root / "tiny" / name, variant="scalar_other")
+    before = _snapshot(root)
+    _refused(capsys, ["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS],
+             str(root / "tiny" / "render.json"), "variant = 'scalar_other'", "--overwrite")
+    assert _snapshot(root) == before
+
+
+@pytest.mark.parametrize("option, fragment", [(["--spp", "8"], "spp = 4 (this render: 8)"),
+                                              (["--fidelity", "path"], "fidelity = 'direct' (this render: 'path')")])
+def test_finished_setup_rendered_otherwise_is_refused(reference, tmp_path, capsys, option, fragment):
+    root = _copy(reference, tmp_path)
+    before = _snapshot(root)
+    _refused(capsys, ["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS, *option],
+             fragment)
+    assert _snapshot(root) == before
+
+
+def test_overwrite_renders_every_capture_again(reference, tmp_path):
+    """--overwrite after a change of setup (or of a record) replaces every capture."""
+    fresh = tmp_path / "fresh"
+    other = _setup_file(tmp_path / "other", seed=1)
+    assert main(["render", str(other), "--out", str(fresh), *ARGS]) == 0
+    root = _copy(reference, tmp_path)
+    assert main(["render", str(other), "--out", str(root), *ARGS, "--overwrite"]) == 0
+    _assert_same_dataset(root, fresh)
+    _edit_json(root / "tiny" / "render.json", variant="scalar_other")
+    (root / "tiny" / "meta.json").unlink()
+    assert main(["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS, "--overwrite"]) == 0
+    _assert_same_dataset(root, reference)
+
+
+CORRUPT = [("frames.json", "{not json", ["frames.json", "cannot read frames manifest"]),
+           ("frames.json", "{}", ["frames.json", "key 'source' = None"]),
+           ("frames.json", '{"source": {"width": 32, "height": 32, "seed": 0, "images_dir": null}, '
+                           '"counts": 3}', ["frames.json", "key 'counts' = 3"]),
+           ("tiny/meta.json", "{oops", ["meta.json", "cannot read"]),
+           ("tiny/meta.json", "[]", ["meta.json", "expected a JSON object"]),
+           ("tiny/render.json", '{"variant": "llvm_ad_rgb"}', ["render.json", "'width', 'height'"]),
+           ("tiny/render.json", '{"variant": 3, "width": 32, "height": 32}', ["render.json", "key 'variant' = 3"])]
+
+
+@pytest.mark.parametrize("name, content, fragments", CORRUPT)
+def test_corrupted_record_is_named(reference, tmp_path, capsys, name, content, fragments):
+    root = _copy(reference, tmp_path)
+    (root / name).write_text(content)
+    before = _snapshot(root)
+    _refused(capsys, ["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS], *fragments)
+    assert _snapshot(root) == before
+
+
+def test_meta_counts_of_the_wrong_type_are_named(reference, tmp_path, capsys):
+    root = _copy(reference, tmp_path)
+    _edit_json(root / "tiny" / "meta.json", counts=5)
+    _refused(capsys, ["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS],
+             "meta.json: key 'counts' = 5")
+
+
+# --------------------------------------------------------------------------------- one writer per root
+
+def test_a_root_held_by_another_writer_is_refused(tmp_path, capsys):
+    root = tmp_path / "data"
+    root.mkdir()
+    with open(root / ".lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        _refused(capsys, ["render", str(_setup_file(tmp_path)), "--out", str(root), *ARGS],
+                 str(root / ".lock"), "another procam process")
+    assert sorted(p.name for p in root.iterdir()) == [".lock"]
+
+
+def test_concurrent_renders_with_other_frame_seeds_one_refused(tmp_path):
+    setup = _setup_file(tmp_path)
+    procs = [subprocess.Popen([sys.executable, "-m", "compensation.cli", "render", str(setup), "--out",
+                               str(tmp_path / "data"), *ARGS, "--frame-seed", str(seed)],
+                              env=_env(), stderr=subprocess.PIPE, text=True) for seed in (1, 2)]
+    results = [(p.wait(), p.stderr.read()) for p in procs]
+    assert sorted(code for code, _ in results) == [0, 2]
+    err = next(err for code, err in results if code == 2)
+    assert ".lock" in err or "frames.json" in err
+    winner = 1 + [code for code, _ in results].index(0)
+    assert json.loads((tmp_path / "data" / "frames.json").read_text())["source"]["seed"] == winner
+    assert read_png(tmp_path / "data" / "tiny" / "cam" / "warp" / "test" / "img_0001.png").shape == (32, 32, 3)
