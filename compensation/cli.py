@@ -296,12 +296,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``procam`` console script; user errors exit with status 2."""
+    """Entry point of the ``procam`` console script; user errors exit with status 2.
+
+    A file-system error that no command turned into a :class:`ProcamError` (a full disk, a folder
+    that cannot be written) is reported the same way, naming the file, instead of a traceback.
+    """
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
     except ProcamError as exc:
         print(f"procam: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"procam: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     return 0
 

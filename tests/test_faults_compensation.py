@@ -182,3 +182,11 @@ def test_killed_bench_resumes_to_the_same_table(tmp_path):
     after = json.loads((tmp_path / "killed" / "runs" / "tinybench" / "compennet-n8" / "config.json").read_text())
     assert (before["train"]["seed"], after["train"]["seed"]) == (0, 1)
     shutil.rmtree(tmp_path / "data")
+
+
+def test_file_system_errors_are_reported_without_traceback(tmp_path, capsys):
+    """bench-sim into a folder under a file: the OSError is named, exit 2."""
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    _fails(capsys, ["bench-sim", "default", "--out", str(blocker / "out"), "--spp", "1", "--repeats", "1",
+                    "--ref-spp", "4", "--window", "8", "--classes", "smooth", "--quiet"], str(blocker))
