@@ -190,3 +190,14 @@ def test_file_system_errors_are_reported_without_traceback(tmp_path, capsys):
     blocker.write_text("")
     _fails(capsys, ["bench-sim", "default", "--out", str(blocker / "out"), "--spp", "1", "--repeats", "1",
                     "--ref-spp", "4", "--window", "8", "--classes", "smooth", "--quiet"], str(blocker))
+
+
+def test_too_few_pairs_for_a_spline_is_a_clear_error(setup_dir, tmp_path, capsys):
+    _fails(capsys, ["train", str(setup_dir), "--method", "tps-textured", "--n-train", "3", "--n-test", "4",
+                    "--out", str(tmp_path / "run"), "--quiet"], "tps-textured", "at least 4")
+
+
+def test_bench_option_values_are_checked_before_any_work(tmp_path, capsys):
+    _fails(capsys, ["bench", "default", "--out", str(tmp_path / "b"), "--methods", "compennet",
+                    "--tables", "1", "--lr", "-1"], "option lr = -1.0")
+    assert not (tmp_path / "b").exists()

@@ -70,7 +70,7 @@ def test_shapes_32px_five_levels():
 
 @pytest.mark.parametrize("size, levels", [((256, 256), 8), ((128, 128), 7), ((64, 64), 6), ((32, 32), 5),
                                           ((512, 512), 8), ((64, 128), 6), ((48, 64), 4), ((48, 48), 4),
-                                          ((96, 128), 5), ((16, 16), 4)])
+                                          ((96, 128), 5)])
 def test_levels_from_image_size(size, levels):
     assert unet_levels(*size) == levels
 
@@ -80,6 +80,7 @@ def test_levels_from_image_size(size, levels):
                "(e.g. 64x48, 128 or 256)"),
     ((64, 24), "24x64 pixels: pix2pix's U-Net needs width and height divisible by 2^4 = 16"),
     ((8, 8), "8x8 pixels: pix2pix's U-Net needs width and height divisible by 2^4 = 16"),
+    ((16, 16), "16x16 pixels: pix2pix's PatchGAN needs width and height of at least 32 pixels"),
 ])
 def test_size_not_divisible_is_refused(size, message):
     with pytest.raises(ProcamError, match=re.escape(message)):

@@ -19,6 +19,7 @@ from compensation.evaluation.metrics import evaluate
 from compensation.evaluation.tables import LOSSES, TABLE2, write_tables
 from compensation.methods import get_method
 from compensation.training.config import COMMON, PROFILES, applicable, make_config
+from compensation.training.loop import TrainingInterrupted
 from compensation.training.runs import load_run, train_run
 from sim.dataset import FrameSpec, write_setup
 from sim.errors import ProcamError
@@ -60,6 +61,12 @@ class BenchConfig:
             if key not in COMMON and not any(key in get_method(m).options.names() for m in used):
                 raise ProcamError(f"option {key!r} is not used by any method of this bench "
                                   f"({', '.join(sorted(used))})")
+        if "init" in self.overrides and "2" in self.tables:
+            raise ProcamError("option 'init': Table 2 compares He initialisation with pre-training "
+                              "on its own white setup; leave Table 2 out (--tables 1,3) to initialise "
+                              "every run from one run")
+        for name in used:  # every value is checked before any rendering or training
+            make_config(self.profile, name, **applicable(name, self.overrides))
 
     @property
     def canonical(self) -> int:
@@ -109,22 +116,27 @@ def _jobs(cfg: BenchConfig, setups: list[str], pretrain_run: Path | None) -> lis
 
 def _train_config(cfg: BenchConfig, method: str, n_train: int, **job_values):
     """The run configuration of one job: the user's options that ``method`` takes, then the job's
-    own values (the user's word wins over a table's iterations and batch)."""
+    own values. The user's word wins over a table's iterations and batch; the loss and
+    initialisation that a table compares are the job's."""
     values = applicable(method, cfg.overrides)
-    values.update({k: v for k, v in job_values.items() if k not in cfg.overrides})
+    values.update({k: v for k, v in job_values.items()
+                   if v is not None and (k in ("loss", "init") or k not in cfg.overrides)})
     return make_config(cfg.profile, method, **{**values, "n_train": n_train, "n_test": cfg.tests})
 
 
-def _reusable(run_dir: Path, train_cfg) -> dict | None:
-    """The metrics of a finished run made with exactly ``train_cfg`` (device aside), else None."""
+def _reusable(run_dir: Path, train_cfg, setup_dir: Path) -> dict | None:
+    """The metrics of a finished run made with exactly ``train_cfg`` (device aside) on the dataset
+    ``setup_dir``, else None."""
     if not (run_dir / "metrics.json").exists():
         return None
     try:
-        done = read_json(run_dir / "config.json", "run configuration")["train"]
+        config = read_json(run_dir / "config.json", "run configuration")
+        done = config["train"]
     except (ProcamError, KeyError, TypeError):
         return None
     wanted = train_cfg.to_dict()
-    same = all(done.get(k) == v for k, v in wanted.items() if k != "device")
+    same = config.get("dataset") == str(Path(setup_dir).resolve()) and all(
+        done.get(k) == v for k, v in wanted.items() if k != "device")
     return read_json(run_dir / "metrics.json", "run metrics") if same else None
 
 
@@ -165,7 +177,7 @@ def run_bench(suite: list, out: Path, cfg: BenchConfig, data_root: Path | None =
         write_setup(data_root, white, spec, progress=progress)
         pretrain = out / "runs" / white.name / "compennet-pretrain"
         pre_cfg = _train_config(cfg, "compennet", max(cfg.sizes))
-        if _reusable(pretrain, pre_cfg) is None:
+        if _reusable(pretrain, pre_cfg, data_root / white.name) is None:
             train_run(data_root / white.name, pre_cfg, pretrain, progress, True)
 
     rows, failures = [], []
@@ -175,11 +187,13 @@ def run_bench(suite: list, out: Path, cfg: BenchConfig, data_root: Path | None =
             job_values = dict(job.extra, loss=job.loss,
                               init=str(Path(job.init).resolve()) if job.init else None)
             train_cfg = _train_config(cfg, job.method, job.n_train, **job_values)
-            metrics = _reusable(run_dir, train_cfg)
+            metrics = _reusable(run_dir, train_cfg, data_root / job.setup)
             if metrics is None:
                 metrics = train_run(data_root / job.setup, train_cfg, run_dir, progress, overwrite=True)
             if cfg.closed_loop and "psnr_reachable" not in metrics.get("closed_loop", {}):
                 metrics = _add_closed_loop(run_dir, data_root / job.setup, cfg.tests)
+        except TrainingInterrupted:  # the user or a scheduler stops the whole bench
+            raise
         except Exception as exc:  # one failure must not lose the others' results
             failures.append({**asdict(job), "error": f"{type(exc).__name__}: {exc}",
                              "traceback": traceback.format_exc(limit=3)})

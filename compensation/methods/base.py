@@ -209,7 +209,8 @@ class Method(abc.ABC):
         -------
         dict
             Statistics: ``seconds`` (wall-clock training time), ``samples_per_second``,
-            ``final_loss``, ``loss_curve`` (list of (iteration, loss, learning rate)).
+            ``final_loss``, ``batch`` (samples per step), ``loss_curve`` (list of (iteration,
+            loss, learning rate)).
         """
 
     @abc.abstractmethod

@@ -17,8 +17,9 @@ Parameters (official code with BatchNorm, where convolutions followed by a norm 
 - PatchGAN on 6 channels: 2,768,705 (the official code logs ``2.769 M``)
 
 The number of U-Net levels follows the image size: log2 of the smaller side, at most 8, so that a
-2^k × 2^k image shrinks to a 1 × 1 bottleneck as in ``unet_256`` / ``unet_128``; width and height
-must be divisible by 2^levels.
+2^k × 2^k image shrinks to a 1 × 1 bottleneck as in ``unet_256`` / ``unet_128``, and no more than
+both sides' factors of two allow (64 × 48 → 4 levels); width and height must be divisible by
+2^levels.
 
 Test-time behaviour follows the paper and the official ``test.py`` without ``--eval``: the
 generator runs as in training — BatchNorm normalises with the statistics of the test batch, which
@@ -68,6 +69,8 @@ NDF = 64
 """Discriminator filters in the first layer (channels)."""
 MIN_LEVELS = 4
 """Fewest U-Net levels (4: a 64 × 48 view; the published nets have 7 and 8)."""
+MIN_SIDE = 32
+"""Smallest image side (pixels): the 70×70 PatchGAN's five 4×4 convolutions need it."""
 MAX_LEVELS = 8
 """Most U-Net levels (``unet_256``)."""
 DROPOUT = 0.5
@@ -117,7 +120,7 @@ def unet_levels(height: int, width: int) -> int:
     Raises
     ------
     ProcamError
-        If the sides allow fewer than :data:`MIN_LEVELS` halvings.
+        If the sides allow fewer than :data:`MIN_LEVELS` halvings, or one is below :data:`MIN_SIDE`.
 
     Examples
     --------
@@ -133,6 +136,9 @@ def unet_levels(height: int, width: int) -> int:
     if levels < MIN_LEVELS:
         raise ProcamError(f"{width}x{height} pixels: pix2pix's U-Net needs width and height divisible "
                           f"by 2^{MIN_LEVELS} = {2 ** MIN_LEVELS} (e.g. 64x48, 128 or 256)")
+    if min(height, width) < MIN_SIDE:
+        raise ProcamError(f"{width}x{height} pixels: pix2pix's PatchGAN needs width and height of at "
+                          f"least {MIN_SIDE} pixels")
     check_size(height, width, levels)
     return levels
 

@@ -345,6 +345,9 @@ class TPSMethod(Method):
             samples per pixel; ``loss_curve`` (that one value); ``degenerate_pixels``.
         """
         pairs = self.training_pairs(data, cfg)
+        if len(pairs) < 4:
+            raise ProcamError(f"{self.name}: {len(pairs)} sample pairs per pixel; a spline with its "
+                              "affine part needs at least 4 (use more training pairs)")
         self.device = resolve_device(cfg.device)
         self.smoothing = float(cfg.options.smoothing)
         start = time.perf_counter()

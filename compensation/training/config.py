@@ -12,6 +12,7 @@ import inspect
 import textwrap
 from dataclasses import asdict, dataclass, fields
 from functools import cache
+from pathlib import Path
 
 from compensation.methods import METHODS, get_method
 from compensation.methods.base import Options
@@ -119,6 +120,8 @@ def make_config(profile: str = "paper", method: str = "compennet", **values) -> 
     common.update({k: v for k, v in values.items() if k in COMMON})
     own = {**options_cls.profiles.get(profile, {}),
            **{k: v for k, v in values.items() if k in options_cls.names()}}
+    if own.get("init"):  # recorded as an absolute path: the same run from any working directory
+        own["init"] = str(Path(own["init"]).resolve())
     try:
         options = options_cls(**own)
     except TypeError as exc:

@@ -119,6 +119,10 @@ class LoopResult:
         return float(np.mean([v[0] for v in self.values[-10:]]))
 
 
+class TrainingInterrupted(ProcamError):
+    """Training stopped by SIGINT/SIGTERM (its state saved when a checkpoint path was given)."""
+
+
 class _Interrupt:
     """Turns SIGINT/SIGTERM into a flag the loop checks after each step (main thread only)."""
 
@@ -259,7 +263,7 @@ def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int,
             if interrupt.signum is not None:
                 where = f"; training state saved to {checkpoint}, run the same command to resume" \
                     if checkpoint is not None else ""
-                raise ProcamError(f"{desc} stopped by {signal.Signals(interrupt.signum).name} after "
+                raise TrainingInterrupted(f"{desc} stopped by {signal.Signals(interrupt.signum).name} after "
                                   f"iteration {it + 1}{where}")
     seconds = time.perf_counter() - start
     return LoopResult(seconds, iters * batch / max(seconds, 1e-9), batch, values.cpu().tolist())

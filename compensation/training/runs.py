@@ -119,7 +119,10 @@ def _prepare_partial(partial: Path, config: dict) -> Path:
     """The checkpoint path inside a fresh or resumable ``partial`` folder holding ``config``."""
     if partial.exists():
         try:
-            same = read_json(partial / "config.json", "run configuration") == config
+            old = read_json(partial / "config.json", "run configuration")
+            # the same run on the same device type; a changed thread count does not matter
+            same = {k: v for k, v in old.items() if k != "device"} == \
+                {k: v for k, v in config.items() if k != "device"}
         except ProcamError:
             same = False
         if not same:
@@ -202,7 +205,6 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
         write_png(partial / "examples.png", example_grid(data.surface, data.test.captures, predicted,
                                                          data.test.frames))
         write_json(partial / "metrics.json", metrics)
-        checkpoint.unlink(missing_ok=True)
         if out_dir.exists():
             _check_out_dir(out_dir, overwrite)
             old = out_dir.parent / f".{out_dir.name}.old"
@@ -212,6 +214,7 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
             shutil.rmtree(old)
         else:
             partial.rename(out_dir)
+        (out_dir / CHECKPOINT_FILE).unlink(missing_ok=True)
     except OSError as exc:
         raise ProcamError(f"{exc.filename or out_dir}: cannot write the run ({exc.strerror or exc}); "
                           f"the training state is kept in {partial}: run the same command again "
