@@ -55,7 +55,8 @@ def add_render(sub) -> None:
     p.add_argument("--spp", type=int, default=None, help="override the setup's samples per pixel")
     p.add_argument("--overwrite", action="store_true",
                    help="render again a folder rendered from another setup, variant, fidelity, spp "
-                        "or size (instead of refusing it)")
+                        "or size (instead of refusing it); on a finished folder, check every file "
+                        "and re-render the damaged ones")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_render)
 

@@ -397,7 +397,8 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         Show a progress bar with captures per second.
     overwrite : bool
         Re-render a setup folder whose captures were rendered from another setup file, Mitsuba
-        variant, fidelity, spp, size or frames, instead of refusing it.
+        variant, fidelity, spp, size or frames, instead of refusing it; for a finished setup of
+        the same configuration, check every file again and re-render the damaged ones.
 
     Returns
     -------
@@ -423,7 +424,7 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
             raise DatasetError("; ".join(changes) + "; choose another --out or pass --overwrite to "
                                "render it again")
         meta_file = out / "meta.json"
-        if not changes and meta_file.exists() and all(
+        if not changes and not overwrite and meta_file.exists() and all(
                 _meta_counts(meta_file).get(k, 0) >= n for k, n in counts.items()):
             write_frames(root, spec, frames)
             return out

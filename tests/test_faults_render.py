@@ -391,3 +391,18 @@ def test_concurrent_renders_with_other_frame_seeds_one_refused(tmp_path):
     winner = 1 + [code for code, _ in results].index(0)
     assert json.loads((tmp_path / "data" / "frames.json").read_text())["source"]["seed"] == winner
     assert read_png(tmp_path / "data" / "tiny" / "cam" / "warp" / "test" / "img_0001.png").shape == (32, 32, 3)
+
+
+def test_overwrite_repairs_a_damaged_capture_of_a_finished_setup(tmp_path, capsys):
+    """A capture damaged after the setup finished is rewritten by --overwrite to its original bytes."""
+    from compensation.cli import main as procam
+
+    args = ["render", "default", "--out", str(tmp_path / "data"), "--size", "32", "--n-train", "2",
+            "--n-test", "1", "--quiet"]
+    assert procam(args) == 0
+    victim = tmp_path / "data" / "default" / "cam" / "warp" / "train" / "img_0001.png"
+    good = victim.read_bytes()
+    victim.write_bytes(good[:40])
+    assert procam(args) == 0 and victim.read_bytes() == good[:40]  # finished: not re-checked
+    assert procam([*args, "--overwrite"]) == 0
+    assert victim.read_bytes() == good
