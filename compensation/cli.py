@@ -173,7 +173,8 @@ def cmd_train(args: argparse.Namespace) -> None:
     metrics = train_run(args.setup_dir, cfg, args.out, progress=not args.quiet, overwrite=args.overwrite)
     print(f"procam: {args.method} on {metrics['setup']} -> {args.out}")
     print(f"  surrogate test: PSNR {metrics['psnr']:.2f} dB, RMSE {metrics['rmse']:.4f}, "
-          f"SSIM {metrics['ssim']:.4f} (uncompensated PSNR {metrics['uncompensated']['psnr']:.2f} dB)")
+          f"SSIM {metrics['ssim']:.4f}, ΔE {metrics['deltaE']:.2f} "
+          f"(uncompensated PSNR {metrics['uncompensated']['psnr']:.2f} dB)")
 
 
 def add_train(sub) -> None:
@@ -183,7 +184,8 @@ def add_train(sub) -> None:
                        description="Train a method on DATA_ROOT/<setup> and write a run directory. "
                                    "Each method takes the common options and its own; an option "
                                    "the method does not use is refused.")
-    p.add_argument("setup_dir", help="a rendered setup folder, e.g. data/default")
+    p.add_argument("setup_dir", help="a setup folder, e.g. data/default or the official benchmark's "
+                                     "ROOT/light2/pos1/curves")
     p.add_argument("--method", default="compennet", choices=sorted(METHODS))
     p.add_argument("--out", required=True, help="run directory to create")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run")
@@ -199,21 +201,28 @@ def cmd_compensate(args: argparse.Namespace) -> None:
     from compensation.training.runs import compensate, load_run, run_size
     from sim.io import read_png, to_float, to_uint8, write_png
 
-    _, config = load_run(args.run)
-    w, h = run_size(config)
+    def tensor(images: list) -> torch.Tensor:
+        return torch.from_numpy(to_float(np.stack(images))).permute(0, 3, 1, 2)
+
+    surface = read_png(args.surface) if args.surface else None
+    if Path(args.run).is_file():
+        if surface is None:
+            raise ProcamError(f"{args.run}: a state dict file needs --surface IMAGE (the capture of the "
+                              "gray frame, e.g. cam/warp/ref/img_gray.png), which also gives the size")
+        h, w = surface.shape[:2]
+    else:
+        w, h = run_size(load_run(args.run)[1])
     names = [Path(p).with_suffix(".png").name for p in args.desired]
     if len(args.desired) > 1 and len(set(names)) < len(names):
         clash = sorted({n for n in names if names.count(n) > 1})
         raise ProcamError(f"desired images {', '.join(clash)}: two inputs would write one output "
                           "file; rename them or compensate them separately")
-    images = []
-    for path in args.desired:
-        img = read_png(path)
-        if img.shape[:2] != (h, w):
-            img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
-        images.append(img)
-    desired = torch.from_numpy(to_float(np.stack(images))).permute(0, 3, 1, 2)
-    frames = compensate(args.run, desired).permute(0, 2, 3, 1).numpy()
+    images = [read_png(path) for path in args.desired] + ([surface] if surface is not None else [])
+    images = [img if img.shape[:2] == (h, w) else cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+              for img in images]
+    desired = tensor(images[:len(args.desired)])
+    frames = compensate(args.run, desired, tensor(images[-1:]) if surface is not None else None)
+    frames = frames.permute(0, 2, 3, 1).numpy()
     out = Path(args.out)
     targets = [out] if len(args.desired) == 1 and out.suffix == ".png" else [out / n for n in names]
     for target, frame in zip(targets, frames):
@@ -224,9 +233,15 @@ def cmd_compensate(args: argparse.Namespace) -> None:
 def add_compensate(sub) -> None:
     p = sub.add_parser("compensate", help="the projector frame that shows a desired image",
                        description="x* = π†(y): the frame to send to the projector so that the "
-                                   "setup of a trained run shows the desired image y.")
-    p.add_argument("run", help="a run directory written by `procam train`")
-    p.add_argument("desired", nargs="+", help="desired image(s) (PNG/JPEG), resized to the run's size")
+                                   "setup of a trained run (or an official CompenNet checkpoint) "
+                                   "shows the desired image y.")
+    p.add_argument("run", help="a run directory written by `procam train`, or a CompenNet state dict "
+                               "file (.pth, e.g. from the official code; needs --surface)")
+    p.add_argument("desired", nargs="+", help="desired image(s) (PNG/JPEG), resized to the run's size "
+                                              "(a .pth: the surface image's size)")
+    p.add_argument("--surface", help="surface image s̃ (the capture of the gray frame in the projector "
+                                     "view); required with a .pth, for a run it replaces the one of "
+                                     "the dataset it was trained on")
     p.add_argument("--out", required=True, help="output PNG (one image) or folder")
     p.set_defaults(func=cmd_compensate)
 
@@ -241,10 +256,10 @@ def cmd_bench(args: argparse.Namespace) -> None:
     cfg = BenchConfig(profile=args.profile, methods=tuple(args.methods.split(",")),
                       sizes=args.sizes, tables=tuple(args.tables.split(",")), size=args.size,
                       n_test=n_test, overrides=options, closed_loop=args.closed_loop)
-    suite = load_setups(args.suite)
-    white = load_setups(args.white)[0] if "2" in cfg.tables else None
-    files = run_bench(suite[:args.limit] if args.limit else suite, Path(args.out), cfg,
-                      Path(args.data) if args.data else None, white, progress=not args.quiet)
+    suite = load_setups(args.suite) if args.suite else None
+    white = load_setups(args.white)[0] if suite and "2" in cfg.tables else None
+    files = run_bench(suite, Path(args.out), cfg, Path(args.data) if args.data else None, white,
+                      progress=not args.quiet, limit=args.limit)
     for name, path in files.items():
         print(f"procam: {name} -> {path}")
     for name in ("table1", "table2", "table3"):
@@ -253,20 +268,28 @@ def cmd_bench(args: argparse.Namespace) -> None:
 
 
 def add_bench(sub) -> None:
-    p = sub.add_parser("bench", help="the paper's tables over a suite of setups",
+    p = sub.add_parser("bench", help="the paper's tables over a suite of setups or a dataset",
                        description="Render what is missing, train every method x size x setup, "
-                                   "evaluate, and write Tables 1-3 (Markdown and CSV). Resumable.")
-    p.add_argument("suite", help="suite or setup file, or a shipped scene name (suite)")
-    p.add_argument("--out", required=True, help="output folder (runs, tables)")
-    p.add_argument("--data", help="dataset root (default OUT/data)")
+                                   "evaluate, and write Tables 1-3 (Markdown and CSV) beside the "
+                                   "paper's figures, and each run's outputs in the official layout "
+                                   "(OUT/official/<setup>/{cam,prj}/cmp/<tag>). Without a suite, "
+                                   "every setup found under --data (a folder holding cam/warp, "
+                                   "e.g. the official benchmark's light2/pos1/curves) is taken as "
+                                   "it is and nothing is rendered. Resumable.")
+    p.add_argument("suite", nargs="?", help="suite or setup file, or a shipped scene name (suite); "
+                                            "omitted: the setups found under --data")
+    p.add_argument("--out", required=True, help="output folder (runs, tables, official outputs)")
+    p.add_argument("--data", help="dataset root (default OUT/data; required without a suite)")
     p.add_argument("--methods", default="compennet,compennet-nosurf", help="comma-separated methods")
     p.add_argument("--sizes", type=_int_list, default=(125, 250, 500), help="training sizes, e.g. 125,250,500")
     p.add_argument("--tables", default="1,2,3", help="which tables (default 1,2,3)")
     p.add_argument("--size", type=_positive, help="canonical size override (pixels)")
-    p.add_argument("--white", default="white", help="white-surface setup for pre-training (Table 2)")
-    p.add_argument("--limit", type=_positive, help="only the first N setups of the suite")
+    p.add_argument("--white", default="white",
+                   help="white-surface setup for pre-training (Table 2; with a suite only)")
+    p.add_argument("--limit", type=_positive, help="only the first N setups")
     p.add_argument("--closed-loop", action="store_true",
-                   help="also project every compensation back through the setup and score it")
+                   help="also project every compensation back through the setup and score it "
+                        "(simulated setups only: those with a setup.toml)")
     _training_options(p)
     p.set_defaults(func=cmd_bench)
 

@@ -1,11 +1,20 @@
-"""Loading one rendered setup (layout: docs/architecture.md) as torch tensors for training and evaluation.
+"""Loading one setup (layout: docs/architecture.md) as torch tensors for training and evaluation.
 
 ```
 DATA_ROOT/{ref,train,test}/img_XXXX.png               projector frames x, shared by all setups
 DATA_ROOT/<setup>/cam/warp/{ref,train,test}/img_XXXX.png   captures x̃ in the projector view
 DATA_ROOT/<setup>/meta.json                           written last: marks a finished setup
 ```
-The surface image s̃ is the capture of the plain gray frame, ``cam/warp/ref/img_0126.png``.
+Setups may be nested (``DATA_ROOT/light2/pos1/curves``, as in the official CompenNet benchmark): the
+frames are read from the nearest folder above the setup that holds ``train/`` and ``test/``
+(:func:`frames_root`), and the setup's name is its path below that folder. A setup with neither
+``meta.json`` nor ``setup.toml`` is a dataset made elsewhere (the official benchmark's setups hold
+only ``cam/warp``): its pairs are counted from the frames. A ``setup.toml`` without ``meta.json`` is
+a procam render that did not finish.
+
+The surface image s̃ is the capture of the plain gray frame: the 126th PNG of ``cam/warp/ref`` in
+sorted order, as the official loader takes it (``img_0126.png`` in procam's datasets,
+``img_gray.png`` in the official benchmark).
 """
 from __future__ import annotations
 
@@ -24,8 +33,8 @@ from sim.io import read_png
 
 N_PLAIN = 125
 """Plain colour frames ``ref/img_0001.png`` … ``img_0125.png`` (5³ levels, black … white)."""
-SURFACE_NAME = "img_0126.png"
-"""Capture of the plain gray frame: the surface image s̃."""
+SURFACE_INDEX = 125
+"""0-based position of the surface image s̃ in the sorted PNG names of ``cam/warp/ref``."""
 SPLITS = ("train", "test")
 _NAME = re.compile(r"img_(\d{4,})\.png")
 
@@ -57,7 +66,7 @@ class SetupData:
     Attributes
     ----------
     name : str
-        Setup name (the folder name).
+        Setup name: its path below the dataset root (``default``, ``light2/pos1/curves``).
     setup_dir : Path
         The setup folder ``DATA_ROOT/<setup>``.
     train, test : PairSet
@@ -95,21 +104,63 @@ def _names(indices) -> str:
     return text + (f" and {len(indices) - 10} more" if len(indices) > 10 else "")
 
 
-def check_finished(setup_dir: Path) -> dict:
-    """Check that ``setup_dir`` is a finished setup and return its ``meta.json``.
+def frames_root(setup_dir: Path) -> Path:
+    """The dataset root of a setup: the nearest folder above it with ``train/`` and ``test/``.
 
     Raises
     ------
     DatasetError
-        If the folder is missing, or ``meta.json`` (written last by the renderer) is missing or
-        unreadable.
+        If no folder above ``setup_dir`` holds both.
+    """
+    for folder in Path(setup_dir).absolute().parents:
+        if (folder / "train").is_dir() and (folder / "test").is_dir():
+            return folder
+    raise DatasetError(f"{setup_dir}: no folder above it holds the projector frames (train/ and "
+                       "test/ beside ref/: the dataset root)")
+
+
+def setup_name(setup_dir: Path) -> str:
+    """A setup's name: its path below :func:`frames_root` (``default``, ``light2/pos1/curves``)."""
+    return Path(setup_dir).absolute().relative_to(frames_root(setup_dir)).as_posix()
+
+
+def surface_path(setup_dir: Path) -> Path:
+    """The surface image s̃ of a setup: the 126th PNG of ``cam/warp/ref`` in sorted order.
+
+    Raises
+    ------
+    DatasetError
+        If the folder holds fewer than 126 PNG files.
+    """
+    ref = Path(setup_dir) / "cam" / "warp" / "ref"
+    names = sorted(n for n in os.listdir(ref) if n.endswith(".png")) if ref.is_dir() else []
+    if len(names) <= SURFACE_INDEX:
+        raise DatasetError(f"{ref}: {len(names)} PNG images; the surface image s̃ (capture of the "
+                           f"gray frame) is the {SURFACE_INDEX + 1}th in sorted order, after the "
+                           f"{N_PLAIN} plain colours")
+    return ref / names[SURFACE_INDEX]
+
+
+def check_finished(setup_dir: Path) -> dict:
+    """Check that ``setup_dir`` is a finished setup and return its ``meta.json`` (``{}`` for a
+    setup made elsewhere, with neither ``meta.json`` nor ``setup.toml``).
+
+    Raises
+    ------
+    DatasetError
+        If the folder is missing, holds no ``cam/warp`` captures, or is a procam render without
+        ``meta.json`` (written last), or ``meta.json`` is unreadable.
     """
     if not setup_dir.is_dir():
         raise DatasetError(f"{setup_dir}: setup folder not found (render it with `procam render`)")
     meta_file = setup_dir / "meta.json"
     if not meta_file.exists():
-        raise DatasetError(f"{setup_dir}: setup is not finished (no meta.json); "
-                           "re-run `procam render` to complete it")
+        if (setup_dir / "setup.toml").exists():
+            raise DatasetError(f"{setup_dir}: setup is not finished (no meta.json); "
+                               "re-run `procam render` to complete it")
+        if not (setup_dir / "cam" / "warp").is_dir():
+            raise DatasetError(f"{setup_dir}: not a setup (no cam/warp captures, no meta.json)")
+        return {}
     try:
         meta = json.loads(meta_file.read_text())
     except (OSError, json.JSONDecodeError) as exc:
@@ -119,8 +170,8 @@ def check_finished(setup_dir: Path) -> dict:
     return meta
 
 
-def available_pairs(setup_dir: Path, split: str, meta: dict) -> int:
-    """Number of complete (capture, frame) pairs of ``split``, checked against the frames.
+def available_pairs(setup_dir: Path, split: str, meta: dict, root: Path) -> int:
+    """Number of complete (capture, frame) pairs of ``split``, checked against the frames in ``root``.
 
     A setup holds captures of frames 1 … n, where n is ``meta.json``'s count for the split (the
     root may hold more frames, rendered later for a larger setup) or, without a count, every frame
@@ -131,7 +182,7 @@ def available_pairs(setup_dir: Path, split: str, meta: dict) -> int:
     DatasetError
         Naming the folder and the missing files if a capture or a frame of 1 … n is absent.
     """
-    frame_dir = setup_dir.parent / split
+    frame_dir = root / split
     capture_dir = setup_dir / "cam" / "warp" / split
     frames = image_indices(frame_dir)
     captures = image_indices(capture_dir)
@@ -187,7 +238,8 @@ def load_setup_data(setup_dir: str | os.PathLike, n_train: int | None = None,
     Parameters
     ----------
     setup_dir : path-like
-        ``DATA_ROOT/<setup>``; the projector frames are read from ``DATA_ROOT``.
+        ``DATA_ROOT/<setup>`` (possibly nested); the projector frames are read from ``DATA_ROOT``
+        (:func:`frames_root`).
     n_train, n_test : int or None
         Use the first ``n`` pairs of each split; None uses all of them.
 
@@ -205,14 +257,12 @@ def load_setup_data(setup_dir: str | os.PathLike, n_train: int | None = None,
     """
     setup_dir = Path(setup_dir)
     meta = check_finished(setup_dir)
-    surface_path = setup_dir / "cam" / "warp" / "ref" / SURFACE_NAME
-    if not surface_path.exists():
-        raise DatasetError(f"{surface_path}: surface image s̃ (capture of the gray frame) is missing")
+    root = frames_root(setup_dir)
 
     wanted = {"train": n_train, "test": n_test}
     counts = {}
     for split in SPLITS:
-        have = available_pairs(setup_dir, split, meta)
+        have = available_pairs(setup_dir, split, meta, root)
         n = have if wanted[split] is None else wanted[split]
         if n < 1:
             raise DatasetError(f"{setup_dir}: n_{split}={n}: expected at least 1 pair")
@@ -220,27 +270,28 @@ def load_setup_data(setup_dir: str | os.PathLike, n_train: int | None = None,
             raise DatasetError(f"{setup_dir / 'cam' / 'warp' / split}: n_{split}={n} asked for but "
                                f"the setup has only {have} {split} pairs")
         counts[split] = n
-    ref_frames = image_indices(setup_dir.parent / "ref")
+    ref_frames = image_indices(root / "ref")
     ref_captures = image_indices(setup_dir / "cam" / "warp" / "ref")
     plain = set(range(1, N_PLAIN + 1))
-    for folder, present in ((setup_dir.parent / "ref", ref_frames),
+    for folder, present in ((root / "ref", ref_frames),
                             (setup_dir / "cam" / "warp" / "ref", ref_captures)):
         if missing := plain - present:
             raise DatasetError(f"{folder}: {len(present & plain)} of the {N_PLAIN} plain colour "
                                f"images; missing {_names(missing)}")
 
-    surface = read_png(surface_path)
+    surface_file = surface_path(setup_dir)
+    surface = read_png(surface_file)
     height, width = surface.shape[:2]
     if height % 4 or width % 4:
-        raise DatasetError(f"{surface_path}: {width}x{height} pixels; CompenNet needs width and "
+        raise DatasetError(f"{surface_file}: {width}x{height} pixels; CompenNet needs width and "
                            "height divisible by 4 (render at another --size)")
 
     def pairs(split: str, n: int) -> PairSet:
         names = [f"img_{i:04d}.png" for i in range(1, n + 1)]
         return PairSet(_read_stack([setup_dir / "cam" / "warp" / split / f for f in names],
-                                   surface_path, surface.shape),
-                       _read_stack([setup_dir.parent / split / f for f in names], surface_path, surface.shape))
+                                   surface_file, surface.shape),
+                       _read_stack([root / split / f for f in names], surface_file, surface.shape))
 
-    return SetupData(name=setup_dir.name, setup_dir=setup_dir,
+    return SetupData(name=setup_name(setup_dir), setup_dir=setup_dir,
                      train=pairs("train", counts["train"]), test=pairs("test", counts["test"]),
                      ref=pairs("ref", N_PLAIN), surface=to_tensor(surface[None]))

@@ -55,15 +55,18 @@ def capture(frames: np.ndarray, albedo: np.ndarray) -> np.ndarray:
 
 
 def make_dataset(root: Path, name: str = "synth", size: int = 32, n_train: int = 16,
-                 n_test: int = 4, seed: int = 0, finished: bool = True) -> Path:
+                 n_test: int = 4, seed: int = 0, finished: bool = True, official: bool = False) -> Path:
     """Write a synthetic dataset root with one setup and return the setup folder.
+
+    Called again with the same root, size, counts and seed, it adds another setup beside the first
+    (the frames are the same).
 
     Parameters
     ----------
     root : Path
         Dataset root (created).
     name : str
-        Setup folder name.
+        Setup folder name, possibly nested (``light2/pos1/curves``).
     size : int
         Canonical width = height in pixels.
     n_train, n_test : int
@@ -71,7 +74,11 @@ def make_dataset(root: Path, name: str = "synth", size: int = 32, n_train: int =
     seed : int
         Seed of the random frames.
     finished : bool
-        Write ``meta.json`` (the marker of a finished setup).
+        Write ``meta.json`` (the marker of a finished setup); False leaves ``setup.toml`` without
+        it, as an interrupted render does.
+    official : bool
+        The official CompenNet benchmark's layout instead: no ``meta.json`` nor ``setup.toml``, the
+        gray frame and its capture named ``img_gray.png``.
     """
     root = Path(root)
     rng = np.random.default_rng(seed)
@@ -82,9 +89,14 @@ def make_dataset(root: Path, name: str = "synth", size: int = 32, n_train: int =
     for split, frames in splits.items():
         captures = capture(frames, albedo)
         for i, (frame, cap) in enumerate(zip(frames, captures), start=1):
-            write_png(root / split / f"img_{i:04d}.png", frame)
-            write_png(setup_dir / "cam" / "warp" / split / f"img_{i:04d}.png", cap)
-    if finished:
+            file = "img_gray.png" if official and split == "ref" and i == len(frames) else f"img_{i:04d}.png"
+            write_png(root / split / file, frame)
+            write_png(setup_dir / "cam" / "warp" / split / file, cap)
+    if official:
+        return setup_dir
+    if not finished:
+        (setup_dir / "setup.toml").write_text('name = "synth"\n')
+    else:
         meta = {"size": [size, size], "counts": {k: len(v) for k, v in splits.items()}}
         (setup_dir / "meta.json").write_text(json.dumps(meta))
     return setup_dir

@@ -101,6 +101,19 @@ def test_tables_and_their_rows(bench):
     assert "correlation over" in (out / "table1.md").read_text()
     for s in ("s1", "s2"):  # the reachable masks, the (2) test images side by side
         assert iio.imread(out / "reachable" / f"{s}.png").shape == (32, 2 * 32, 3)
+    # the paper's figures beside procam's, ΔE in the surrogate and closed-loop columns
+    assert t1[0]["paper PSNR"] == "12.1673" and t2[0]["paper SSIM"] == "0.6788"
+    assert [r["paper PSNR"] for r in t3] == ["21.1782", "20.7927", "21.0134", "21.7998"]
+    assert all(float(r["deltaE"]) > 0 and float(r["CL deltaE"]) > 0 for r in t1[:1 + 2 * len(methods)])
+    assert "Closed loop left out" not in (out / "table1.md").read_text()  # every setup is simulated
+    # the official code's outputs, per setup and run, under the bench's own folder; Table 3's l1+ssim
+    # run is Table 1's compennet-n8 (one configuration, one tag)
+    for s in ("s1", "s2"):
+        for kind in ("cam", "prj"):
+            tags = {p.name for p in (out / "official" / s / kind / "cmp").iterdir()}
+            assert {"CompenNet_l1+ssim_4_2_3", "CompenNet_pretrained_l1+ssim_32_2_3", "TPS_8",
+                    "Nayar_4", "CompenNet_l2_8_2_3"} <= tags and len(tags) == 2 * len(methods) + 2 + 3
+            assert len(list((out / "official" / s / kind / "cmp" / "TPS_4").iterdir())) == 2
 
 
 def test_runs_take_the_options_of_their_method(bench):

@@ -2,13 +2,16 @@
 from __future__ import annotations
 
 import json
+import os
 import re
+import shutil
 
 import numpy as np
 import pytest
 import torch
 
 from compensation.data import load_setup_data
+from sim.dataset import image_name
 from sim.errors import DatasetError
 from sim.io import read_png, write_png
 from synthetic import albedo_pattern, capture, make_dataset
@@ -89,8 +92,44 @@ def test_meta_counts_limit_pairs_when_the_root_has_more_frames(fresh):
 
 def test_missing_surface(fresh):
     (fresh / "cam/warp/ref/img_0126.png").unlink()
-    with pytest.raises(DatasetError, match=re.escape(f"{fresh / 'cam/warp/ref/img_0126.png'}: surface image")):
+    with pytest.raises(DatasetError, match=re.escape(f"{fresh / 'cam/warp/ref'}: 125 PNG images; the "
+                                                     "surface image s̃ (capture of the gray frame) is the 126th")):
         load_setup_data(fresh)
+
+
+def test_official_benchmark_layout(tmp_path, setup_dir):
+    """Nested setups with only cam/warp, the surface as img_gray.png, no meta.json: the official
+    benchmark loads as procam's own layout does, the frames from the root three levels up."""
+    nested = make_dataset(tmp_path, name="light2/pos1/curves", official=True)
+    assert not (nested / "meta.json").exists() and (tmp_path / "ref/img_gray.png").exists()
+    official, own = load_setup_data(nested), load_setup_data(setup_dir)
+    assert official.name == "light2/pos1/curves" and official.setup_dir == nested
+    for split in ("train", "test", "ref"):
+        for kind in ("captures", "frames"):
+            assert torch.equal(getattr(getattr(official, split), kind), getattr(getattr(own, split), kind))
+    assert torch.equal(official.surface, own.surface)
+    assert len(load_setup_data(nested, n_train=5).train) == 5
+
+
+def test_frames_root_must_exist(tmp_path):
+    setup = make_dataset(tmp_path / "root", name="a/b", official=True)
+    shutil.rmtree(tmp_path / "root/test")
+    with pytest.raises(DatasetError, match=re.escape(f"{setup}: no folder above it holds the projector "
+                                                     "frames (train/ and test/")):
+        load_setup_data(setup)
+    (setup / "cam/warp").rename(setup / "cam/other")
+    with pytest.raises(DatasetError, match=re.escape(f"{setup}: not a setup (no cam/warp captures")):
+        load_setup_data(setup)
+
+
+def test_own_layout_is_what_the_official_loader_reads(setup_dir):
+    """The official loader reads a folder's sorted file list: procam's captures and frames align by
+    position, and the 126th capture of cam/warp/ref is the surface image."""
+    root = setup_dir.parent
+    ref = sorted(os.listdir(setup_dir / "cam/warp/ref"))
+    assert len(ref) == 126 and ref[125] == "img_0126.png" == image_name(126)
+    for split in ("train", "test"):
+        assert sorted(os.listdir(setup_dir / "cam/warp" / split)) == sorted(os.listdir(root / split))
 
 
 def test_missing_plain_colour_capture(fresh):

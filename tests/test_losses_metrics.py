@@ -1,4 +1,5 @@
-"""Losses and the paper's metrics: SSIM against scikit-image, PSNR/RMSE by hand, all images count."""
+"""Losses and the paper's metrics: SSIM (official convention) against an independent filter, the
+scikit-image convention against scikit-image, PSNR/RMSE and CIEDE2000 by hand, all images count."""
 from __future__ import annotations
 
 import doctest
@@ -25,6 +26,22 @@ def skimage_ssim(a: np.ndarray, b: np.ndarray) -> float:
                                  use_sample_covariance=False, data_range=1)
 
 
+def official_ssim(a: np.ndarray, b: np.ndarray) -> float:
+    """The official code's SSIM written from its definition: an 11×11 σ = 1.5 Gaussian over the
+    image with its border replicated by 5 pixels (``mode="nearest"``, radius 5), a map of the image's
+    size, C1 = 0.01², C2 = 0.03², mean over pixels and channels."""
+    def blur(x):
+        return gaussian_filter(x, sigma=(1.5, 1.5, 0), mode="nearest", truncate=5 / 1.5)
+
+    mu_a, mu_b = blur(a), blur(b)
+    var_a, var_b = blur(a * a) - mu_a ** 2, blur(b * b) - mu_b ** 2
+    cov = blur(a * b) - mu_a * mu_b
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    ssim_map = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / ((mu_a ** 2 + mu_b ** 2 + c1) * (var_a + var_b + c2))
+    assert ssim_map.shape == a.shape
+    return float(ssim_map.mean())
+
+
 def natural_pairs(size: tuple[int, int]) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Crops of bundled photographs (targets) and noisy / blurred / dimmed versions (predictions)."""
     h, w = size
@@ -47,15 +64,64 @@ def test_ssim_matches_skimage_on_natural_images(size):
     expected = np.array([skimage_ssim(a, b) for a, b in zip(targets, preds)])
     assert expected.min() < 0.5 and expected.max() > 0.8  # a spread of qualities
     target, pred = to_tensor(targets), to_tensor(preds)
-    per_image = metrics.ssim_per_image(pred, target).numpy()
+    per_image = metrics.ssim_per_image(pred, target, convention="skimage").numpy()
     # Same window, constants and averaging region: float64 agrees to rounding.
     np.testing.assert_allclose(per_image, expected, rtol=0, atol=1e-10)
-    assert metrics.ssim(pred, target) == pytest.approx(expected.mean(), abs=1e-10)
+    assert metrics.ssim(pred, target, "skimage") == pytest.approx(expected.mean(), abs=1e-10)
+
+
+@pytest.mark.parametrize("size", [(64, 64), (32, 48), (12, 11)])
+def test_official_ssim_matches_its_definition(size):
+    targets, preds = natural_pairs(size)
+    expected = np.array([official_ssim(a, b) for a, b in zip(targets, preds)])
+    target, pred = to_tensor(targets), to_tensor(preds)
+    np.testing.assert_allclose(metrics.ssim_per_image(pred, target).numpy(), expected, rtol=0, atol=1e-6)
+    assert metrics.ssim(pred, target) == pytest.approx(expected.mean(), abs=1e-6)
+    assert metrics.evaluate(pred, target, batch_size=4)["ssim"] == pytest.approx(expected.mean(), abs=1e-6)
     # The float32 training SSIM (what the losses use) is the same definition, to float32 rounding.
     loss_ssim = metrics.structural_similarity(pred.float(), target.float(), per_image=True).double().numpy()
     np.testing.assert_allclose(loss_ssim, expected, rtol=0, atol=1e-4)
     assert 1 - losses.ssim_loss(pred.float(), target.float()).item() == pytest.approx(expected.mean(),
                                                                                        abs=1e-4)
+    # The conventions differ by the border windows only.
+    if min(size) > 11:
+        skimage = np.array([skimage_ssim(a, b) for a, b in zip(targets, preds)])
+        assert np.abs(expected - skimage).max() > 1e-3
+
+
+def test_ssim_conventions_by_name():
+    x = torch.rand(1, 3, 16, 8, generator=torch.Generator().manual_seed(0))
+    assert metrics.ssim(x, x) == 1.0  # the official border makes any size at least the window
+    with pytest.raises(ValueError, match=r"at least 11 pixels \(skimage convention\)"):
+        metrics.ssim(x, x, "skimage")
+    with pytest.raises(ValueError, match="convention 'matlab': expected one of official, skimage"):
+        metrics.evaluate(x, x, convention="matlab")
+
+
+def srgb_lightness(v: int) -> float:
+    """CIE L* of the neutral 8-bit sRGB grey ``v`` (IEC 61966-2-1 decoding, CIE 1976 lightness)."""
+    c = v / 255
+    y = c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
+    return 116 * y ** (1 / 3) - 16 if y > (6 / 29) ** 3 else y * (29 / 3) ** 3
+
+
+def test_delta_e_by_hand():
+    """CIEDE2000 of neutral greys reduces to ΔL' / S_L with S_L = 1 + 0.015 (L̄ − 50)² / √(20 + (L̄ − 50)²)."""
+    def grey(v, n=1):
+        return torch.full((n, 3, 4, 4), v / 255, dtype=torch.float64)
+
+    assert metrics.delta_e(grey(0), grey(255)) == pytest.approx(100.0, abs=1e-3)
+    l1, l2 = srgb_lightness(60), srgb_lightness(200)
+    mean = (l1 + l2) / 2
+    expected = (l2 - l1) / (1 + 0.015 * (mean - 50) ** 2 / math.sqrt(20 + (mean - 50) ** 2))
+    assert metrics.delta_e(grey(60), grey(200)) == pytest.approx(expected, abs=1e-3)
+    # 8-bit sRGB: values are rounded to the same level before the conversion.
+    assert metrics.delta_e(grey(60), grey(60) + 0.4 / 255) == 0.0
+    # The mean over pixels and images: half the pixels of one of two images differ.
+    pred, target = grey(60, 2), grey(60, 2)
+    pred[1, :, :2] = 200 / 255
+    assert metrics.delta_e_per_image(pred, target).tolist() == pytest.approx([0.0, expected / 2], abs=1e-3)
+    assert metrics.evaluate(pred, target)["deltaE"] == pytest.approx(expected / 4, abs=1e-3)
 
 
 def test_gaussian_window():
@@ -90,7 +156,7 @@ def test_evaluate_counts_every_image():
     pred = target + errors.view(n, 1, 1, 1)
     mse = float(np.mean(errors.double().numpy() ** 2))
     result = metrics.evaluate(pred, target, batch_size=2)
-    assert set(result) == {"psnr", "rmse", "ssim"}
+    assert set(result) == {"psnr", "rmse", "ssim", "deltaE"}
     assert all(type(v) is float for v in result.values())
     assert result["psnr"] == pytest.approx(10 * math.log10(1 / mse), rel=1e-6)
     assert result["rmse"] == pytest.approx(math.sqrt(3 * mse), rel=1e-6)
@@ -101,7 +167,7 @@ def test_evaluate_counts_every_image():
     assert abs(dropped["psnr"] - result["psnr"]) > 0.5
     assert abs(dropped["ssim"] - result["ssim"]) > 1e-4
     whole = {"psnr": metrics.psnr(pred, target), "rmse": metrics.rmse(pred, target),
-             "ssim": metrics.ssim(pred, target)}
+             "ssim": metrics.ssim(pred, target), "deltaE": metrics.delta_e(pred, target)}
     for batch_size in (1, 3, 64):
         assert metrics.evaluate(pred, target, batch_size=batch_size) == pytest.approx(whole,
                                                                                       rel=1e-12)
@@ -113,7 +179,6 @@ def test_evaluate_counts_every_image():
     ((2, 2, 16, 16), (2, 2, 16, 16), r"\(N, 3, H, W\) with N > 0, got \(2, 2, 16, 16\)"),
     ((3, 16, 16), (3, 16, 16), r"\(N, 3, H, W\) with N > 0"),
     ((0, 3, 16, 16), (0, 3, 16, 16), "N > 0"),
-    ((2, 3, 16, 8), (2, 3, 16, 8), "at least 11 pixels"),
 ])
 def test_evaluate_rejects_bad_shapes(pred_shape, target_shape, match):
     with pytest.raises(ValueError, match=match):
@@ -173,9 +238,9 @@ def test_get_loss():
         losses.get_loss("mse")
 
 
-def test_ssim_loss_rejects_images_smaller_than_window():
-    with pytest.raises(ValueError, match="at least 11 pixels"):
-        losses.ssim_loss(torch.zeros(1, 3, 8, 8), torch.zeros(1, 3, 8, 8))
+def test_ssim_loss_shapes():
+    x = torch.rand(1, 3, 8, 8, generator=torch.Generator().manual_seed(0))
+    assert losses.ssim_loss(x, x).abs().item() < 1e-6  # the official border: smaller than the window
     with pytest.raises(ValueError, match="shapes differ"):
         metrics.structural_similarity(torch.zeros(1, 3, 16, 16), torch.zeros(1, 3, 16, 12))
 

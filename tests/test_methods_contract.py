@@ -61,6 +61,7 @@ def foreign_option(name: str) -> str:
 def test_method_contract(name, data, tmp_path):
     cls = get_method(name)
     assert cls.name == name and set(cls.options.names()).isdisjoint(COMMON)
+    assert re.fullmatch(r"[A-Za-z0-9_]+", cls.official_name)  # a folder name part of the official tag
     cfg = small_config(name)
     method = cls("cpu")
     stats = method.fit(data, cfg, progress=False)

@@ -19,7 +19,8 @@ from compensation.methods.compennet import CompenNetOptions
 from compensation.methods.tps import TPSOptions
 from compensation.training.config import COMMON, PROFILES, TrainConfig, make_config
 from compensation.training.loop import BatchSampler
-from compensation.training.runs import compensate, load_run, run_size, train_run
+from compensation.training.runs import (compensate, load_checkpoint, load_run, run_size,
+                                        scores_are_current, train_run)
 from sim.errors import ProcamError
 from sim.io import read_png, to_uint8
 
@@ -68,7 +69,8 @@ def test_compennet_learns_and_beats_uncompensated(run):
 def test_uncompensated_row_is_captures_vs_frames(run, data):
     metrics = json.loads((run / "metrics.json").read_text())
     plain = evaluate(data.test.captures, data.test.frames)
-    assert metrics["uncompensated"] == pytest.approx({k: float(plain[k]) for k in ("psnr", "rmse", "ssim")})
+    assert metrics["uncompensated"] == pytest.approx(plain)
+    assert metrics["ssim_convention"] == "official" and scores_are_current(metrics)
 
 
 def test_run_directory(run, setup_dir, data):
@@ -217,7 +219,7 @@ def test_compensate_uses_the_run_dataset_surface(run, data, tmp_path):
     config = json.loads((moved / "config.json").read_text())
     config["dataset"] = str(tmp_path / "gone" / "synth")
     (moved / "config.json").write_text(json.dumps(config))
-    with pytest.raises(ProcamError, match=re.escape(f"{tmp_path / 'gone/synth/cam/warp/ref/img_0126.png'}: "
+    with pytest.raises(ProcamError, match=re.escape(f"{tmp_path / 'gone/synth/cam/warp/ref'}: 0 PNG images; "
                                                     "the surface image")):
         compensate(moved, desired, device="cpu")
     assert torch.equal(compensate(moved, desired, surface=data.surface, device="cpu"), expected)
@@ -266,6 +268,35 @@ def test_data_parallel_checkpoint_loads_without_prefix(run, tmp_path):
     torch.save({f"module.{k}": v for k, v in state.items()}, tmp_path / "model.pt")
     loaded = load_state(tmp_path / "model.pt")
     assert loaded.keys() == state.keys() and all(torch.equal(loaded[k], state[k]) for k in state)
+
+
+def test_official_checkpoint_file(run, nosurf_run, data, tmp_path, capsys):
+    """A state dict file (.pth) as the official code saves it, here under DataParallel: ``--init`` and
+    ``compensate`` take it; compensate needs the surface image, whose size it takes."""
+    state = load_state(run / "model.pt")
+    pth = tmp_path / "official.pth"
+    torch.save({f"module.{k}": v for k, v in state.items()}, pth)
+    # --init: the network starts from the file's weights (a learning rate of 1e-12 keeps them)
+    method = get_method("compennet")(device="cpu")
+    method.fit(data, tiny_config(init=str(pth), iters=1, lr=1e-12), progress=False)
+    assert all(torch.allclose(v, state[k], atol=1e-9) for k, v in method.model.state_dict().items())
+    # compensate: a .pth predicts as the run it came from; the surface is required
+    desired = data.test.frames[:2]
+    expected = compensate(run, desired, device="cpu")
+    assert torch.equal(compensate(pth, desired, surface=data.surface, device="cpu"), expected)
+    with pytest.raises(ProcamError, match=re.escape(f"{pth}: a state dict file holds no surface image")):
+        compensate(pth, desired, device="cpu")
+    assert load_checkpoint(nosurf_run / "model.pt", "cpu").name == "compennet-nosurf"
+    from compensation.cli import main
+    from sim.io import write_png
+
+    write_png(tmp_path / "y.png", to_uint8(desired[0].permute(1, 2, 0).numpy()))
+    write_png(tmp_path / "s.png", to_uint8(data.surface[0].permute(1, 2, 0).numpy()))
+    assert main(["compensate", str(pth), str(tmp_path / "y.png"), "--surface", str(tmp_path / "s.png"),
+                 "--out", str(tmp_path / "x.png")]) == 0
+    assert np.array_equal(read_png(tmp_path / "x.png"), to_uint8(expected[0].permute(1, 2, 0).numpy()))
+    assert main(["compensate", str(pth), str(tmp_path / "y.png"), "--out", str(tmp_path / "x.png")]) == 2
+    assert "a state dict file needs --surface IMAGE" in capsys.readouterr().err
 
 
 def test_make_config_profiles_and_errors():

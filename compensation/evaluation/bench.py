@@ -1,27 +1,38 @@
-"""The surrogate benchmark of the CompenNet paper over a suite of simulated setups.
+"""The surrogate benchmark of the CompenNet paper over a suite of simulated setups or a dataset.
 
 suite → (render what is missing) → train each method × training size × setup → evaluate →
 Table 1 (methods × training-set sizes, averaged over setups, with the uncompensated row),
 Table 2 (pre-trained vs He-initialised CompenNet: 32 pairs, 500 iterations, batch 32),
 Table 3 (training losses ℓ1, ℓ2, SSIM, ℓ1+SSIM), as Markdown and CSV, plus per-setup rows.
-With ``closed_loop`` every run is also scored by projecting its compensation back through the
-setup, next to the iterative-refinement oracle.
+Without a suite, the setups are every folder holding ``cam/warp`` under the dataset root
+(:func:`found_setups`, e.g. the official benchmark's ``light2/pos1/curves``) and nothing is rendered.
+With ``closed_loop`` every run on a simulated setup (one with ``setup.toml``) is also scored by
+projecting its compensation back through the setup, next to the iterative-refinement oracle.
+
+Each run also leaves the official code's outputs, in the official layout under
+``OUT/official/<setup>`` (never inside the dataset, which may be read-only)::
+
+    cam/cmp/<tag>/img_XXXX.png    π†(x̃) for the test captures x̃ (what the surrogate metrics score)
+    prj/cmp/<tag>/img_XXXX.png    π†(y) for the test images y: the frames to project
+
+with the tag of :func:`official_tag` (e.g. ``CompenNet_l1+ssim_500_64_1000``).
 """
 from __future__ import annotations
 
+import os
 import time
 import traceback
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from compensation.data import load_setup_data
+from compensation.data import SetupData, load_setup_data
 from compensation.evaluation.metrics import evaluate
 from compensation.evaluation.tables import LOSSES, TABLE2, write_tables
 from compensation.methods import get_method
-from compensation.training.config import COMMON, PROFILES, applicable, make_config
+from compensation.training.config import COMMON, PROFILES, TrainConfig, applicable, make_config
 from compensation.training.loop import TrainingInterrupted
-from compensation.training.runs import load_run, train_run
-from sim.dataset import FrameSpec, write_setup
+from compensation.training.runs import load_run, scores_are_current, train_run
+from sim.dataset import FrameSpec, image_name, write_setup
 from sim.errors import ProcamError
 from sim.io import read_json, to_uint8, write_json, write_png
 
@@ -126,7 +137,8 @@ def _train_config(cfg: BenchConfig, method: str, n_train: int, **job_values):
 
 def _reusable(run_dir: Path, train_cfg, setup_dir: Path) -> dict | None:
     """The metrics of a finished run made with exactly ``train_cfg`` (device aside) on the dataset
-    ``setup_dir``, else None."""
+    ``setup_dir`` and scored with today's metrics
+    (:func:`~compensation.training.runs.scores_are_current`), else None."""
     if not (run_dir / "metrics.json").exists():
         return None
     try:
@@ -135,13 +147,78 @@ def _reusable(run_dir: Path, train_cfg, setup_dir: Path) -> dict | None:
     except (ProcamError, KeyError, TypeError):
         return None
     wanted = train_cfg.to_dict()
-    same = config.get("dataset") == str(Path(setup_dir).resolve()) and all(
-        done.get(k) == v for k, v in wanted.items() if k != "device")
-    return read_json(run_dir / "metrics.json", "run metrics") if same else None
+    if config.get("dataset") != str(Path(setup_dir).resolve()) or not all(
+            done.get(k) == v for k, v in wanted.items() if k != "device"):
+        return None
+    metrics = read_json(run_dir / "metrics.json", "run metrics")
+    return metrics if scores_are_current(metrics) else None
 
 
-def run_bench(suite: list, out: Path, cfg: BenchConfig, data_root: Path | None = None,
-              white=None, progress: bool = True) -> dict[str, Path]:
+def found_setups(root: Path) -> list[str]:
+    """Every setup below ``root``: the folders holding ``cam/warp``, as paths relative to ``root``
+    (``default``, ``light2/pos1/curves``), sorted.
+
+    Raises
+    ------
+    ProcamError
+        If ``root`` is not a folder or holds no setup.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise ProcamError(f"{root}: dataset root not found")
+    found = []
+    for folder, subfolders, _ in os.walk(root):
+        if (Path(folder) / "cam" / "warp").is_dir():
+            found.append(Path(folder).relative_to(root).as_posix())
+            subfolders.clear()  # a setup holds no other setup
+        subfolders.sort()
+    if not found:
+        raise ProcamError(f"{root}: no setup found (a setup is a folder holding cam/warp/)")
+    return sorted(found)
+
+
+def official_tag(cfg: TrainConfig, pretrained: bool = False) -> str:
+    """The official code's name of a run's output folder: ``<model>_<loss>_<ntrain>_<batch>_<iters>``.
+
+    ``<model>`` is the method's ``official_name`` (``_pretrained`` appended for a pre-trained
+    initialisation); a method without a ``loss``, ``batch`` or ``iters`` option leaves that field
+    out (TPS: ``TPS_125``; pix2pix: ``pix2pix_125_1_10000``).
+
+    Examples
+    --------
+    >>> official_tag(make_config("paper", "compennet"))
+    'CompenNet_l1+ssim_500_64_1000'
+    >>> official_tag(make_config("quick", "tps-textured", n_train=125))
+    'TPS_textured_125'
+    """
+    options = cfg.options
+    model = get_method(cfg.method).official_name + ("_pretrained" if pretrained else "")
+    fields = [model] + ([options.loss] if hasattr(options, "loss") else []) + [str(cfg.n_train)]
+    return "_".join(fields + [str(getattr(options, k)) for k in ("batch", "iters") if hasattr(options, k)])
+
+
+def write_official_outputs(run_dir: Path, data: SetupData, dest: Path, tag: str) -> None:
+    """Write a run's π†(x̃) of the test captures to ``dest/cam/cmp/<tag>`` and its π†(y) of the
+    test images y (the test frames) to ``dest/prj/cmp/<tag>``, as ``img_XXXX.png`` (8 bit)."""
+    method, config = load_run(run_dir)
+    batch = config["train"].get("eval_batch", 64)
+    for kind, inputs in (("cam", data.test.captures), ("prj", data.test.frames)):
+        frames = method.predict(inputs, data.surface, batch_size=batch).permute(0, 2, 3, 1).numpy()
+        for i, frame in enumerate(frames, start=1):
+            write_png(dest / kind / "cmp" / tag / image_name(i), to_uint8(frame))
+
+
+def _official_complete(dest: Path, tag: str, n: int) -> bool:
+    return all(len(list((dest / kind / "cmp" / tag).glob("img_*.png"))) == n for kind in ("cam", "prj"))
+
+
+def _simulated(setup_dir: Path) -> bool:
+    """Whether procam rendered the setup (its ``setup.toml`` makes a closed loop possible)."""
+    return (setup_dir / "setup.toml").exists()
+
+
+def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path | None = None,
+              white=None, progress: bool = True, limit: int | None = None) -> dict[str, Path]:
     """Run the benchmark and write its tables.
 
     Resumable: a run whose ``metrics.json`` exists and whose configuration equals the job's is
@@ -150,27 +227,46 @@ def run_bench(suite: list, out: Path, cfg: BenchConfig, data_root: Path | None =
 
     Parameters
     ----------
-    suite : list of Setup
-        The setups (e.g. ``load_suite("scenes/suite.toml")``).
+    suite : list of Setup, or None
+        The setups (e.g. ``load_suite("scenes/suite.toml")``), rendered into ``data_root`` where
+        missing; None: every setup found under ``data_root`` (:func:`found_setups`), as it is.
     out : Path
-        Output folder: ``runs/``, ``table{1,2,3}.{md,csv}``, ``per_setup.csv``, ``failures.json``.
+        Output folder: ``runs/``, ``official/``, ``table{1,2,3}.{md,csv}``, ``per_setup.csv``,
+        ``failures.json``.
     cfg : BenchConfig
         What to run.
     data_root : Path, optional
-        Where datasets are rendered (default ``out/data``); existing ones are reused.
+        Where datasets are rendered (default ``out/data``); existing ones are reused. Required
+        without a suite.
     white : Setup, optional
         The white-surface setup used for pre-training (Table 2).
+    limit : int, optional
+        Only the first ``limit`` setups.
 
     Returns
     -------
     dict
         Paths of the files written, by name.
+
+    Raises
+    ------
+    ProcamError
+        Without a suite: if ``data_root`` is not given or holds no setup, or ``cfg.size`` is set
+        (found setups keep their own size).
     """
     out = Path(out)
+    if suite is None:
+        if data_root is None:
+            raise ProcamError("bench without a suite: give the dataset root whose setups to take (--data)")
+        if cfg.size is not None:
+            raise ProcamError(f"--size {cfg.size}: the setups found under {data_root} keep their own size")
+        setups = found_setups(Path(data_root))[:limit]
+    else:
+        suite = suite[:limit]
+        setups = [s.name for s in suite]
     data_root = Path(data_root or out / "data")
     spec = FrameSpec(max(max(cfg.sizes), TABLE2["n_train"]), cfg.tests, (cfg.canonical,) * 2)
-    setups = [s.name for s in suite]
-    for s in suite:
+    for s in suite or []:
         write_setup(data_root, s, spec, progress=progress)
     pretrain = None
     if "2" in cfg.tables and white is not None:
@@ -181,6 +277,7 @@ def run_bench(suite: list, out: Path, cfg: BenchConfig, data_root: Path | None =
             train_run(data_root / white.name, pre_cfg, pretrain, progress, True)
 
     rows, failures = [], []
+    test_data: dict[str, SetupData] = {}  # the current setup's test pairs, for the official outputs
     for job in _jobs(cfg, setups, pretrain):
         run_dir = out / "runs" / job.setup / job.run_name
         try:
@@ -188,9 +285,16 @@ def run_bench(suite: list, out: Path, cfg: BenchConfig, data_root: Path | None =
                               init=str(Path(job.init).resolve()) if job.init else None)
             train_cfg = _train_config(cfg, job.method, job.n_train, **job_values)
             metrics = _reusable(run_dir, train_cfg, data_root / job.setup)
-            if metrics is None:
+            trained = metrics is None
+            if trained:
                 metrics = train_run(data_root / job.setup, train_cfg, run_dir, progress, overwrite=True)
-            if cfg.closed_loop and "psnr_reachable" not in metrics.get("closed_loop", {}):
+            tag, dest = official_tag(train_cfg, job.init is not None), out / "official" / job.setup
+            if trained or not _official_complete(dest, tag, metrics["n_test"]):
+                if job.setup not in test_data:
+                    test_data = {job.setup: load_setup_data(data_root / job.setup, 1, cfg.tests)}
+                write_official_outputs(run_dir, test_data[job.setup], dest, tag)
+            if (cfg.closed_loop and _simulated(data_root / job.setup)
+                    and "psnr_reachable" not in metrics.get("closed_loop", {})):
                 metrics = _add_closed_loop(run_dir, data_root / job.setup, cfg.tests)
         except TrainingInterrupted:  # the user or a scheduler stops the whole bench
             raise
@@ -198,19 +302,25 @@ def run_bench(suite: list, out: Path, cfg: BenchConfig, data_root: Path | None =
             failures.append({**asdict(job), "error": f"{type(exc).__name__}: {exc}",
                              "traceback": traceback.format_exc(limit=3)})
             continue
-        rows.append({**asdict(job), "extra": dict(job.extra), "run": str(run_dir), **metrics})
+        rows.append({**asdict(job), "extra": dict(job.extra), "run": str(run_dir), "official_tag": tag,
+                     **metrics})
 
     masks = out / "reachable" if cfg.closed_loop else None
-    uncompensated, oracle = {}, {}
+    uncompensated, oracle, sizes = {}, {}, set()
     for s in setups:
-        uncompensated[s], oracle_rows = _setup_baselines(data_root / s, cfg.tests, masks)
+        setup_masks = masks if _simulated(data_root / s) else None
+        uncompensated[s], oracle_rows, size = _setup_baselines(data_root / s, cfg.tests, setup_masks)
+        sizes.add(size)
         if oracle_rows is not None:
             oracle[s] = oracle_rows
-    return write_tables(out, cfg, rows, failures, uncompensated, oracle)
+    image_size = ", ".join(f"{w}x{h}" if w != h else f"{w}²" for h, w in sorted(sizes)) + " px"
+    return write_tables(out, cfg, rows, failures, uncompensated, oracle, image_size)
 
 
-def _setup_baselines(setup_dir: Path, n_test: int, masks: Path | None) -> tuple[dict, list[dict] | None]:
-    """The method-free rows of one setup: scores of the test captures x̃ against x, and the oracle.
+def _setup_baselines(setup_dir: Path, n_test: int,
+                     masks: Path | None) -> tuple[dict, list[dict] | None, tuple[int, int]]:
+    """The method-free rows of one setup: scores of the test captures x̃ against x, the oracle and
+    the image size (height, width).
 
     With a ``masks`` folder (closed loop), the uncompensated scores also get the closed-loop scores
     of y projected as is (its captures are the test captures), ``masks/<setup>.png`` shows the
@@ -221,7 +331,7 @@ def _setup_baselines(setup_dir: Path, n_test: int, masks: Path | None) -> tuple[
     captures, y = data.test.captures, data.test.frames
     scores = evaluate(captures, y)
     if masks is None:
-        return scores, None
+        return scores, None, data.size
     from compensation.evaluation.closed_loop import (closed_loop_scores, iterative_refinement,
                                                      reachable_mask, reachable_overlay, simulator_for)
 
@@ -229,8 +339,8 @@ def _setup_baselines(setup_dir: Path, n_test: int, masks: Path | None) -> tuple[
     scores["closed_loop"] = closed_loop_scores(captures, y, mask)
     k = min(N_MASK_FIGURE, y.shape[0])
     strip = reachable_overlay(y[:k], mask[:k]).permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
-    write_png(masks / f"{setup_dir.name}.png", to_uint8(strip.numpy()))
-    return scores, iterative_refinement(data, simulator_for(setup_dir))
+    write_png(masks / f"{data.name}.png", to_uint8(strip.numpy()))
+    return scores, iterative_refinement(data, simulator_for(setup_dir)), data.size
 
 
 def _add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:

@@ -1,9 +1,9 @@
 """Training losses for compensation networks, as small pure functions of (pred, target).
 
 Every loss takes two tensors (N, 3, H, W), float in [0, 1], and returns a differentiable scalar
-tensor averaged over the batch. The SSIM terms use the metric's own SSIM
-(:func:`compensation.evaluation.metrics.structural_similarity`: 11×11 Gaussian window, σ = 1.5,
-data range 1), so H and W must be at least 11. :data:`LOSSES` maps the names
+tensor averaged over the batch. The SSIM terms use the metric's own SSIM in the official code's
+convention (:func:`compensation.evaluation.metrics.structural_similarity`: 11×11 Gaussian window,
+σ = 1.5, data range 1, each image's border replicated by 5 pixels). :data:`LOSSES` maps the names
 accepted by the training configuration to the functions; :func:`get_loss` looks one up.
 """
 

@@ -1,32 +1,45 @@
-"""Image-quality metrics of the CompenNet paper, over *all* test images.
+"""Image-quality metrics of the CompenNet paper and its successors, over *all* test images.
 
-Definitions (those of the CompenNet paper and its official code), for predictions and targets (N, 3, H, W) in [0, 1]:
+Definitions for predictions and targets (N, 3, H, W) in [0, 1]:
 
 * MSE  — mean squared error over all pixels, channels and images (one number for the whole set);
 * PSNR — ``10 · log10(1 / MSE)`` in dB (``inf`` for identical sets);
 * RMSE — ``sqrt(3 · MSE)``, the root mean squared RGB-vector distance per pixel;
-* SSIM — per image, SSIM with an 11×11 Gaussian window (σ = 1.5 pixels), per RGB channel, data
-  range 1, averaged over the channels; then the mean over images.
+* SSIM — an 11×11 Gaussian window (σ = 1.5 pixels) per RGB channel, data range 1,
+  C1 = 0.01², C2 = 0.03²; the mean of the SSIM map over its pixels, the channels and the images;
+* ΔE   — CIEDE2000 colour difference of the 8-bit sRGB images in CIE Lab (D65), the mean over
+  pixels and images (reported by the CompenNet line's later papers).
 
-The SSIM equals scikit-image's ``structural_similarity(a, b, channel_axis=-1,
-gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1)``: scikit-image
-filters with reflect padding and then crops a border of (11 - 1) / 2 = 5 pixels before averaging,
-which leaves exactly the positions of pytorch-msssim's 'valid' convolution, so the two average the
-same SSIM map. Metrics are computed in float64 with a float64 window
-(:func:`gaussian_window`) and agree with scikit-image to about 1e-15;
-pytorch-msssim's default float32 window alone would leave a difference of about 1e-6.
+Two SSIM conventions differ in which window positions the map holds (:data:`SSIM_CONVENTIONS`):
+
+``"official"`` (the default), as the official CompenNet code computes it
+    each image is first padded by 5 pixels on every side by edge replication, then the window runs
+    over the padded image without further padding, so the SSIM map has the image's own size and
+    the border pixels count with replicated neighbours.
+``"skimage"``
+    only window positions that fit inside the image: the map is (H − 10) × (W − 10). This equals
+    scikit-image's ``structural_similarity(a, b, channel_axis=-1, gaussian_weights=True,
+    sigma=1.5, use_sample_covariance=False, data_range=1)``, which filters with reflect padding
+    and then crops the 5-pixel border before averaging.
+
+The border counts for a larger share of small images: on the 100 test captures of the shipped
+default setup at 64² (uncompensated, against the frames) the official SSIM is 0.5501, scikit-image's
+0.5798. Both run pytorch-msssim's valid window over the (padded or unpadded) images with a float64
+window (:func:`gaussian_window`), so float64 values agree with scikit-image to about 1e-15.
 
 Unlike the official code, nothing is dropped when N is not a multiple of the batch size:
-:func:`evaluate` streams over batches, accumulating the squared-error sum and the per-image SSIM
-sum, so its result equals the full-set definitions with bounded memory.
+:func:`evaluate` streams over batches, accumulating the squared-error sum and the per-image SSIM and
+ΔE sums, so its result equals the full-set definitions with bounded memory.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytorch_msssim
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 
@@ -56,26 +69,36 @@ def gaussian_window(size: int = WIN_SIZE, sigma: float = WIN_SIGMA) -> Tensor:
 
 _WINDOW = gaussian_window()
 
+SSIM_CONVENTIONS = ("official", "skimage")
+"""SSIM conventions by name: the official CompenNet code's (edge-replicated border) and
+scikit-image's (window positions inside the image only); see the module docstring."""
 
-def structural_similarity(pred: Tensor, target: Tensor, per_image: bool = False) -> Tensor:
+
+def structural_similarity(pred: Tensor, target: Tensor, per_image: bool = False,
+                          convention: str = "official") -> Tensor:
     """Structural similarity (1 for identical images), mean over RGB channels and images.
 
     pytorch-msssim's SSIM with an 11×11 Gaussian window (:func:`gaussian_window`, σ = 1.5
-    pixels), data range 1, K = (0.01, 0.03), averaged over the valid (unpadded) window positions
-    of each channel; differentiable (the SSIM losses build on it).
+    pixels), data range 1, K = (0.01, 0.03), averaged over the SSIM map of each channel; under the
+    ``"official"`` convention the images are first padded by 5 pixels by edge replication (see the
+    module docstring). Differentiable: the SSIM losses build on it.
 
     Parameters
     ----------
     pred, target : Tensor
-        (N, 3, H, W) images in [0, 1], H and W at least 11 pixels.
+        (N, C, H, W) images in [0, 1]; under ``"skimage"`` H and W at least 11 pixels.
     per_image : bool
         Return the (N,) SSIM of each image (mean over its channels) instead of the batch mean.
+    convention : str
+        ``"official"`` (edge-replicated border, a map of the image's size) or ``"skimage"``
+        (window positions inside the image only), see :data:`SSIM_CONVENTIONS`.
 
     Raises
     ------
     ValueError
-        If the shapes differ or an image is smaller than the 11×11 window (pytorch-msssim would
-        silently skip the smoothing along that axis).
+        If the convention is unknown, the shapes differ, or an image is smaller than the 11×11
+        window under ``"skimage"`` (pytorch-msssim would silently skip the smoothing along that
+        axis).
 
     Examples
     --------
@@ -84,13 +107,24 @@ def structural_similarity(pred: Tensor, target: Tensor, per_image: bool = False)
     1.0
     >>> structural_similarity(x, x, per_image=True).shape
     torch.Size([2])
+    >>> y = (x + 0.1 * torch.rand(x.shape, generator=torch.Generator().manual_seed(1))).clamp(0, 1)
+    >>> [round(structural_similarity(x, y, convention=c).item(), 4) for c in SSIM_CONVENTIONS]
+    [0.9903, 0.9904]
     """
+    if convention not in SSIM_CONVENTIONS:
+        raise ValueError(f"ssim: convention {convention!r}: expected one of "
+                         f"{', '.join(SSIM_CONVENTIONS)}")
     if pred.shape != target.shape:
         raise ValueError(f"ssim: pred and target shapes differ: {tuple(pred.shape)} vs "
                          f"{tuple(target.shape)}")
-    if pred.ndim != 4 or min(pred.shape[2:]) < WIN_SIZE:
-        raise ValueError(f"ssim: expected (N, C, H, W) images with H and W at least {WIN_SIZE} "
-                         f"pixels (the SSIM window), got shape {tuple(pred.shape)}")
+    smallest = 1 if convention == "official" else WIN_SIZE
+    if pred.ndim != 4 or min(pred.shape[2:]) < smallest:
+        raise ValueError(f"ssim: expected (N, C, H, W) images with H and W at least {smallest} "
+                         f"pixel{'s' * (smallest > 1)} ({convention} convention), got shape "
+                         f"{tuple(pred.shape)}")
+    if convention == "official":
+        border = (WIN_SIZE // 2,) * 4
+        pred, target = F.pad(pred, border, mode="replicate"), F.pad(target, border, mode="replicate")
     win = _WINDOW.repeat(pred.shape[1], 1, 1, 1)  # one window per channel (grouped convolution)
     return pytorch_msssim.ssim(pred, target, data_range=1.0, size_average=not per_image, win=win)
 
@@ -164,11 +198,11 @@ def rmse(pred: Tensor, target: Tensor) -> float:
     return rmse_from_mse(mse(pred, target))
 
 
-def ssim_per_image(pred: Tensor, target: Tensor) -> Tensor:
+def ssim_per_image(pred: Tensor, target: Tensor, convention: str = "official") -> Tensor:
     """SSIM of each image pair, mean over its RGB channels, float64 tensor (N,).
 
-    11×11 Gaussian window, σ = 1.5 pixels, data range 1, valid window positions only (see the
-    module docstring for the match with scikit-image). H and W must be at least 11.
+    11×11 Gaussian window, σ = 1.5 pixels, data range 1, the border as ``convention`` says
+    (:func:`structural_similarity`; under ``"skimage"`` H and W must be at least 11).
 
     Examples
     --------
@@ -177,10 +211,11 @@ def ssim_per_image(pred: Tensor, target: Tensor) -> Tensor:
     tensor([1., 1.], dtype=torch.float64)
     """
     _check_pair(pred, target)
-    return structural_similarity(pred.double(), target.double(), per_image=True)
+    return structural_similarity(pred.double(), target.double(), per_image=True,
+                                 convention=convention)
 
 
-def ssim(pred: Tensor, target: Tensor) -> float:
+def ssim(pred: Tensor, target: Tensor, convention: str = "official") -> float:
     """Mean over images of the per-image SSIM of :func:`ssim_per_image`.
 
     Examples
@@ -189,7 +224,56 @@ def ssim(pred: Tensor, target: Tensor) -> float:
     >>> ssim(x, x)
     1.0
     """
-    return ssim_per_image(pred, target).mean().item()
+    return ssim_per_image(pred, target, convention).mean().item()
+
+
+def srgb_to_lab(images: Tensor) -> np.ndarray:
+    """CIE Lab (D65) of (N, 3, H, W) sRGB images in [0, 1], rounded to 8 bits first: (N, H, W, 3).
+
+    colour-science's sRGB decoding and matrix (D65 white), then ``XYZ_to_Lab`` under D65; L in
+    [0, 100].
+
+    Examples
+    --------
+    >>> lab = srgb_to_lab(torch.tensor([0.0, 1.0]).view(2, 1, 1, 1).expand(2, 3, 1, 1))
+    >>> lab.shape, [round(float(v), 2) for v in lab[:, 0, 0, 0]]
+    ((2, 1, 1, 3), [0.0, 100.0])
+    """
+    import colour
+
+    rgb = np.rint(images.detach().double().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy() * 255) / 255
+    return colour.XYZ_to_Lab(colour.sRGB_to_XYZ(rgb))
+
+
+def delta_e_per_image(pred: Tensor, target: Tensor) -> Tensor:
+    """Mean CIEDE2000 ΔE of each image pair over its pixels, float64 tensor (N,).
+
+    Both images are rounded to 8-bit sRGB and converted by :func:`srgb_to_lab`; the difference is
+    ``colour.delta_E(..., method="CIE 2000")``.
+
+    Examples
+    --------
+    >>> black, white = torch.zeros(1, 3, 2, 2), torch.ones(1, 3, 2, 2)
+    >>> [round(v, 3) for v in delta_e_per_image(black, white).tolist()]
+    [100.0]
+    """
+    import colour
+
+    _check_pair(pred, target)
+    per_pixel = colour.delta_E(srgb_to_lab(pred), srgb_to_lab(target), method="CIE 2000")
+    return torch.from_numpy(np.asarray(per_pixel, np.float64).reshape(pred.shape[0], -1).mean(axis=1))
+
+
+def delta_e(pred: Tensor, target: Tensor) -> float:
+    """Mean CIEDE2000 ΔE over all pixels and images (:func:`delta_e_per_image`).
+
+    Examples
+    --------
+    >>> x = torch.rand(2, 3, 4, 4, generator=torch.Generator().manual_seed(0))
+    >>> delta_e(x, x)
+    0.0
+    """
+    return delta_e_per_image(pred, target).mean().item()
 
 
 def masked_scores(pred: Tensor, target: Tensor, mask: Tensor) -> dict[str, float]:
@@ -229,46 +313,49 @@ def masked_scores(pred: Tensor, target: Tensor, mask: Tensor) -> dict[str, float
     return {"psnr": psnr_from_mse(mean_squared), "rmse": rmse_from_mse(mean_squared)}
 
 
-def evaluate(pred: Tensor, target: Tensor, batch_size: int = 64) -> dict[str, float]:
-    """PSNR, RMSE and SSIM of a whole test set, streamed over batches of ``batch_size`` images.
+def evaluate(pred: Tensor, target: Tensor, batch_size: int = 64,
+             convention: str = "official") -> dict[str, float]:
+    """PSNR, RMSE, SSIM and ΔE of a whole test set, streamed over batches of ``batch_size`` images.
 
     Every image counts (the last batch may be smaller); the result equals :func:`psnr`,
-    :func:`rmse` and :func:`ssim` on the full tensors up to float64 rounding.
+    :func:`rmse`, :func:`ssim` and :func:`delta_e` on the full tensors up to float64 rounding.
 
     Parameters
     ----------
     pred, target : Tensor
-        (N, 3, H, W) images in [0, 1]; H and W at least 11 pixels.
+        (N, 3, H, W) images in [0, 1]; under the ``"skimage"`` SSIM convention H and W at least 11.
     batch_size : int
         Images per batch (bounds the float64 working memory).
+    convention : str
+        SSIM convention (:data:`SSIM_CONVENTIONS`), ``"official"`` by default.
 
     Returns
     -------
     dict
-        ``psnr`` (dB), ``rmse`` and ``ssim`` as Python floats.
+        ``psnr`` (dB), ``rmse``, ``ssim`` and ``deltaE`` (CIEDE2000) as Python floats.
 
     Raises
     ------
     ValueError
-        On mismatched or non-(N, 3, H, W) shapes, images smaller than the SSIM window, or a
-        ``batch_size`` below 1.
+        On mismatched or non-(N, 3, H, W) shapes, an unknown convention, images smaller than the
+        SSIM window under ``"skimage"``, or a ``batch_size`` below 1.
 
     Examples
     --------
     >>> x = torch.zeros(5, 3, 16, 16)
     >>> y = torch.full((5, 3, 16, 16), 0.5)
     >>> {k: round(v, 4) for k, v in evaluate(x, y, batch_size=2).items()}
-    {'psnr': 6.0206, 'rmse': 0.866, 'ssim': 0.0004}
+    {'psnr': 6.0206, 'rmse': 0.866, 'ssim': 0.0004, 'deltaE': 39.9345}
     """
     _check_pair(pred, target)
     if not isinstance(batch_size, int) or batch_size < 1:
         raise ValueError(f"evaluate: batch_size must be a positive integer, got {batch_size!r}")
-    squared_error = 0.0
-    ssim_sum = 0.0
+    squared_error = ssim_sum = delta_e_sum = 0.0
     for i in range(0, pred.shape[0], batch_size):
         p, t = pred[i:i + batch_size].double(), target[i:i + batch_size].double()
         squared_error += torch.sum((p - t) ** 2).item()
-        ssim_sum += ssim_per_image(p, t).sum().item()
+        ssim_sum += ssim_per_image(p, t, convention).sum().item()
+        delta_e_sum += delta_e_per_image(p, t).sum().item()
     mean_squared = squared_error / target.numel()
     return {"psnr": psnr_from_mse(mean_squared), "rmse": rmse_from_mse(mean_squared),
-            "ssim": ssim_sum / pred.shape[0]}
+            "ssim": ssim_sum / pred.shape[0], "deltaE": delta_e_sum / pred.shape[0]}

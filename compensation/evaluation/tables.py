@@ -2,7 +2,9 @@
 
 Each table is written from the rows of finished runs (one dict per run, its ``metrics.json`` plus
 the job that made it), the uncompensated scores per setup and, with the closed loop, the
-iterative-refinement oracle.
+iterative-refinement oracle. Tables 1-3 put the CompenNet paper's PSNR, RMSE and SSIM in a
+``paper`` column beside each of procam's, on the same rows, so the gap reads at once; the CSV keeps
+them as separate columns (``paper PSNR`` …, ``-`` where the paper has no such row).
 """
 from __future__ import annotations
 
@@ -20,8 +22,12 @@ from sim.io import atomic_write, write_json, write_text
 if TYPE_CHECKING:
     from compensation.evaluation.bench import BenchConfig
 
-METRICS = ("psnr", "rmse", "ssim")
+METRICS = ("psnr", "rmse", "ssim", "deltaE")
 """Surrogate metrics, in table order."""
+LABELS = {"psnr": "PSNR", "rmse": "RMSE", "ssim": "SSIM", "deltaE": "deltaE"}
+"""Column names of the metrics."""
+PAPER_METRICS = ("psnr", "rmse", "ssim")
+"""The metrics the paper reports: each gets a ``paper`` column beside procam's."""
 CL_COLUMNS = (*METRICS, "psnr_reachable", "infer_ms_per_frame")
 """Closed-loop keys shown in the tables (the last only for methods)."""
 LOSSES = ("l1", "l2", "ssim", "l1+ssim")
@@ -29,10 +35,53 @@ LOSSES = ("l1", "l2", "ssim", "l1+ssim")
 TABLE2 = dict(n_train=32, iters=500, batch=32)
 """The paper's fine-tuning setting for Table 2."""
 
+PAPER_TABLE1: dict[tuple[str, int | None], tuple[float, float, float]] = {
+    ("uncompensated", None): (12.1673, 0.4342, 0.4875),
+    ("TPS", 125): (17.6399, 0.2299, 0.6042),
+    ("TPS_textured", 125): (19.3156, 0.1898, 0.6518),
+    ("pix2pix", 125): (17.9358, 0.2347, 0.6439),
+    ("CompenNet_wo_surf", 125): (19.8227, 0.1786, 0.7003),
+    ("CompenNet", 125): (21.0542, 0.1574, 0.7314),
+    ("TPS_textured", 250): (19.2764, 0.1907, 0.6590),
+    ("pix2pix", 250): (16.2939, 0.2842, 0.6393),
+    ("CompenNet_wo_surf", 250): (20.0857, 0.1733, 0.7146),
+    ("CompenNet", 250): (21.2991, 0.1536, 0.7420),
+    ("TPS_textured", 500): (19.2264, 0.1917, 0.6615),
+    ("pix2pix", 500): (18.0923, 0.2350, 0.6523),
+    ("CompenNet_wo_surf", 500): (20.2618, 0.1698, 0.7209),
+    ("CompenNet", 500): (21.7998, 0.1425, 0.7523),
+}
+"""The CompenNet paper's Table 1 (PSNR, RMSE, SSIM; real data, mean over 24 setups) by the method's
+``official_name`` and the number of training pairs (None for the uncompensated row)."""
+PAPER_TABLE2 = {"he": (19.6767, 0.1863, 0.6788), "pretrained": (20.3423, 0.1688, 0.7165)}
+"""The paper's Table 2: CompenNet He-initialised and pre-trained (32 pairs, 500 iterations, batch 32)."""
+PAPER_TABLE3 = {"l1": (21.1782, 0.1527, 0.6727), "l2": (20.7927, 0.1594, 0.6453),
+                "ssim": (21.0134, 0.1566, 0.7591), "l1+ssim": (21.7998, 0.1425, 0.7523)}
+"""The paper's Table 3: CompenNet by training loss (500 pairs)."""
+PAPER_NOTE = ("paper columns: the CompenNet paper's figures on real captures (mean over 24 setups, "
+              "256² px, 200 test pairs); '-' where the paper has no such row.")
+
 
 def _mean(rows: list[dict], key: str, sub: str | None = None) -> float:
     vals = [(r[sub] if sub else r)[key] for r in rows if (sub is None or sub in r)]
     return float(np.mean(vals)) if vals else float("nan")
+
+
+def _with_paper(ours: list, paper: tuple[float, float, float] | None) -> list:
+    """procam's metric values (in :data:`METRICS` order) with the paper's beside each of
+    :data:`PAPER_METRICS` ("-" without a paper figure).
+
+    >>> _with_paper([20.0, 0.2, 0.7, 9.0], (21.0, 0.15, 0.75))
+    [20.0, 21.0, 0.2, 0.15, 0.7, 0.75, 9.0]
+    >>> _with_paper([20.0, 0.2, 0.7, 9.0], None)
+    [20.0, '-', 0.2, '-', 0.7, '-', 9.0]
+    """
+    cells = []
+    for m, value in zip(METRICS, ours):
+        cells.append(value)
+        if m in PAPER_METRICS:
+            cells.append("-" if paper is None else paper[PAPER_METRICS.index(m)])
+    return cells
 
 
 def _table(path: Path, title: str, header: list[str], body: list[list], note: str = "") -> None:
@@ -59,13 +108,24 @@ def _correlation_note(rows: list[dict]) -> str:
         b = np.array([r["closed_loop"].get(cl_m, np.nan) for r in pairs], float)
         ok = np.isfinite(a) & np.isfinite(b)
         r = np.corrcoef(a[ok], b[ok])[0, 1] if ok.sum() > 2 else float("nan")
-        parts.append(f"{m.upper()} r = {r:.3f}" if m == cl_m else f"PSNR vs CL PSNR reachable r = {r:.3f}")
+        parts.append(f"{LABELS[m]} r = {r:.3f}" if m == cl_m else f"PSNR vs CL PSNR reachable r = {r:.3f}")
     return (f"Surrogate (π†(x̃) vs x) vs closed-loop (capture of π†(y) vs y) correlation over "
             f"{len(pairs)} runs: " + ", ".join(parts) + ". CL columns: closed loop.")
 
 
-def write_tables(out: Path, cfg: BenchConfig, rows, failures, uncompensated, oracle) -> dict:
+def write_tables(out: Path, cfg: BenchConfig, rows, failures, uncompensated, oracle,
+                 image_size: str) -> dict:
     """Write ``table{1,2,3}.{md,csv}``, ``per_setup.{md,csv}``, ``failures.json`` and ``bench.json``.
+
+    Tables 1-3 carry the paper's figures in ``paper`` columns beside procam's (:data:`PAPER_TABLE1`
+    and the others). With ``cfg.closed_loop`` the closed-loop columns average the setups that were
+    simulated; the others (no ``setup.toml``, no closed-loop scores) are named in Table 1's note, and
+    without any simulated setup the columns are left out.
+
+    Parameters
+    ----------
+    image_size : str
+        The setups' image size for the titles (e.g. ``"64² px"``).
 
     Returns
     -------
@@ -73,56 +133,72 @@ def write_tables(out: Path, cfg: BenchConfig, rows, failures, uncompensated, ora
         Paths of the files written, by name.
     """
     files = {}
-    cl = cfg.closed_loop
-    head = ["method", "n_train", "PSNR", "RMSE", "SSIM", "train s", "setups"]
-    if cl:
-        head += ["CL PSNR", "CL RMSE", "CL SSIM", "CL PSNR reachable", "infer ms/frame"]
+    cl = cfg.closed_loop and any("closed_loop" in u for u in uncompensated.values())
+    cl_head = [f"CL {LABELS[m]}" for m in METRICS] + ["CL PSNR reachable"]
+    head = ["method", "n_train"] + _with_paper([LABELS[m] for m in METRICS],
+                                               tuple(f"paper {LABELS[m]}" for m in PAPER_METRICS))
+    head += ["train s", "setups"] + (cl_head + ["infer ms/frame"] if cl else [])
 
-    def line(name, n, group):
-        row = [name, n] + [_mean(group, m) for m in METRICS] + [_mean(group, "train_seconds"), len(group)]
+    def line(name, n, group, paper):
+        row = [name, n] + _with_paper([_mean(group, m) for m in METRICS], paper)
+        row += [_mean(group, "train_seconds"), len(group)]
         return row + ([_mean(group, m, "closed_loop") for m in CL_COLUMNS] if cl else [])
 
     unc = list(uncompensated.values())
-    unc_row = ["uncompensated", "-"] + [_mean(unc, m) for m in METRICS] + ["-", len(unc)]
+    unc_row = ["uncompensated", "-"] + _with_paper([_mean(unc, m) for m in METRICS],
+                                                   PAPER_TABLE1[("uncompensated", None)]) + ["-", len(unc)]
     unc_row += [_mean(unc, m, "closed_loop") for m in CL_COLUMNS[:-1]] + ["-"] if cl else []
+    not_simulated = sorted(s for s, u in uncompensated.items() if "closed_loop" not in u)
     if "1" in cfg.tables:
         t1 = [r for r in rows if r["table"] == "1"]
-        body = [unc_row] + [line(m, n, [r for r in t1 if r["method"] == m and r["n_train"] == n])
+        body = [unc_row] + [line(m, n, [r for r in t1 if r["method"] == m and r["n_train"] == n],
+                                 PAPER_TABLE1.get((METHODS[m].official_name, n)))
                             for m in cfg.methods for n in cfg.sizes]
         for k in sorted({row["iterations"] for rs in oracle.values() for row in rs}):
             group = [row for rs in oracle.values() for row in rs if row["iterations"] == k]
-            body.append([f"iterative refinement ({k} it., {group[0]['projections']} proj.)", "-", "-", "-", "-",
-                         "-", len(group)] + [_mean(group, m) for m in CL_COLUMNS[:-1]] + ["-"])
-        note = ""
+            body.append([f"iterative refinement ({k} it., {group[0]['projections']} proj.)", "-"]
+                        + ["-"] * (len(METRICS) + len(PAPER_METRICS)) + ["-", len(group)]
+                        + [_mean(group, m) for m in CL_COLUMNS[:-1]] + ["-"])
+        notes = [PAPER_NOTE]
         if cl:
             reach = 100 * _mean(unc, "reachable_fraction", "closed_loop")
-            note = (_correlation_note(rows) + f" {reach:.1f} % of the desired pixels are physically "
-                    "reachable (mean over setups); CL PSNR reachable scores those pixels only.")
+            notes.append(_correlation_note(rows) + f" {reach:.1f} % of the desired pixels are physically "
+                         "reachable (mean over simulated setups); CL PSNR reachable scores those pixels only.")
+        if cfg.closed_loop and not_simulated:
+            notes.append(f"Closed loop left out for {len(not_simulated)} setup(s) that procam did not "
+                         f"simulate (no setup.toml, nothing to project through): {', '.join(not_simulated)}.")
         _table(out / "table1", f"Table 1: methods x training-set size, mean over {len(unc)} setups "
-               f"({cfg.profile} profile, {cfg.canonical}² px, {cfg.tests} test pairs each)", head, body, note)
+               f"({cfg.profile} profile, {image_size}, {cfg.tests} test pairs each)", head, body,
+               "\n\n".join(notes))
         files["table1"] = out / "table1.md"
     if "2" in cfg.tables:
         t2 = [r for r in rows if r["table"] == "2"]
         body = [line("CompenNet, He init" if init is None else "CompenNet, pre-trained on white", TABLE2["n_train"],
-                     [r for r in t2 if (r["init"] is None) == (init is None)]) for init in (None, "white")]
+                     [r for r in t2 if (r["init"] is None) == (init is None)], PAPER_TABLE2[init or "he"])
+                for init in (None, "pretrained")]
+        note = PAPER_NOTE
+        if not any(r["init"] for r in t2):
+            note += (" No pre-trained run finished: pre-training needs the white setup that "
+                     "`procam bench` renders with a suite.")
         _table(out / "table2", "Table 2: pre-trained vs He-initialised CompenNet (32 pairs, "
                f"{cfg.overrides.get('iters', TABLE2['iters'])} iterations, batch "
-               f"{cfg.overrides.get('batch', TABLE2['batch'])})", head, body)
+               f"{cfg.overrides.get('batch', TABLE2['batch'])})", head, body, note)
         files["table2"] = out / "table2.md"
     if "3" in cfg.tables:
         t3 = [r for r in rows if r["table"] == "3"]
-        body = [line(f"CompenNet, loss {loss}", max(cfg.sizes), [r for r in t3 if r["loss"] == loss])
-                for loss in LOSSES]
-        _table(out / "table3", "Table 3: CompenNet trained with different losses", head, body)
+        body = [line(f"CompenNet, loss {loss}", max(cfg.sizes), [r for r in t3 if r["loss"] == loss],
+                     PAPER_TABLE3[loss]) for loss in LOSSES]
+        _table(out / "table3", "Table 3: CompenNet trained with different losses", head, body,
+               PAPER_NOTE + " The paper's losses are trained on 500 pairs.")
         files["table3"] = out / "table3.md"
     per = [[r["table"], r["setup"], r["method"], r["n_train"], r["loss"], "pretrained" if r["init"] else "he",
-            cfg.overrides.get("seed", 0)] + [r[m] for m in METRICS]
+            cfg.overrides.get("seed", 0), r["official_tag"]] + [r[m] for m in METRICS]
            + [r["uncompensated"][m] for m in METRICS] + [r["train_seconds"]]
            + ([r.get("closed_loop", {}).get(m, float("nan")) for m in CL_COLUMNS[:-1]] if cl else [])
            for r in rows]
     _table(out / "per_setup", "Per-setup results", ["table", "setup", "method", "n_train", "loss", "init", "seed",
-           "PSNR", "RMSE", "SSIM", "unc PSNR", "unc RMSE", "unc SSIM", "train s"]
-           + (["CL PSNR", "CL RMSE", "CL SSIM", "CL PSNR reachable"] if cl else []), per)
+           "official tag"] + [LABELS[m] for m in METRICS] + [f"unc {LABELS[m]}" for m in METRICS]
+           + ["train s"] + (cl_head if cl else []), per)
     files["per_setup"] = out / "per_setup.csv"
     write_json(out / "failures.json", {"failures": failures})
     write_json(out / "bench.json", {"config": {**asdict(cfg), "methods": list(cfg.methods)},

@@ -87,6 +87,17 @@ def load_state(path: Path) -> dict[str, torch.Tensor]:
     return state
 
 
+def weights_file(init: str | Path) -> Path:
+    """The weights an ``init`` option names: a run directory's ``model.pt``, or a state dict file
+    itself (``.pth``, e.g. a checkpoint of the official CompenNet code).
+
+    >>> str(weights_file("runs/white"))  # not a file: a run directory
+    'runs/white/model.pt'
+    """
+    init = Path(init)
+    return init if init.is_file() else init / CHECKPOINT
+
+
 def load_arrays(path: Path, keys: tuple[str, ...], what: str) -> dict[str, np.ndarray]:
     """Arrays ``keys`` of a method's ``.npz`` state, read without unpickling.
 
@@ -194,6 +205,9 @@ class Method(abc.ABC):
     name: ClassVar[str]
     options: ClassVar[type[Options]]
     """The method's options dataclass."""
+    official_name: ClassVar[str]
+    """The model's name in the official CompenNet code's output folders and the paper's tables
+    (``CompenNet``, ``TPS_textured``, …): no spaces or slashes."""
 
     @abc.abstractmethod
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,

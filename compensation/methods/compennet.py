@@ -35,7 +35,7 @@ from torch import Tensor, nn
 
 from compensation.evaluation.losses import LOSSES
 from compensation.methods.base import (CHECKPOINT, Method, Options, load_weights, resolve_device,
-                                       save_state)
+                                       save_state, weights_file)
 from compensation.training.loop import fit_network
 from sim.errors import ProcamError
 
@@ -252,7 +252,9 @@ class CompenNetOptions(Options):
     """Mixed precision on CUDA (bf16 autocast where supported, else fp16 with a gradient scaler);
     the CPU path is plain fp32 either way (paper: off)."""
     init: str | None = None
-    """Run directory whose weights initialise the network (pre-training; same architecture)."""
+    """Run directory, or state dict file (``.pth``, e.g. an official CompenNet checkpoint, with or
+    without DataParallel's ``module.`` prefix), whose weights initialise the network (pre-training;
+    same architecture)."""
 
     profiles: ClassVar[dict[str, dict]] = {
         "paper": {},
@@ -284,6 +286,7 @@ class CompenNetMethod(Method):
     """
 
     name = "compennet"
+    official_name = "CompenNet"
     options = CompenNetOptions
     surface: ClassVar[bool] = True
     """Whether the network has the surface branch."""
@@ -298,7 +301,7 @@ class CompenNetMethod(Method):
         torch.manual_seed(cfg.seed)  # He init of the new network is seeded
         model = CompenNet(surface=self.surface)
         if cfg.options.init is not None:
-            load_weights(model, Path(cfg.options.init) / CHECKPOINT, self.name)
+            load_weights(model, weights_file(cfg.options.init), self.name)
         self.model = model.to(self.device)
         return fit_network(self.model, data, cfg, self.surface, progress, checkpoint)
 
@@ -319,9 +322,20 @@ class CompenNetMethod(Method):
 
     @classmethod
     def load(cls, run_dir: Path, device: str = "auto") -> CompenNetMethod:
+        return cls.from_weights(Path(run_dir) / CHECKPOINT, device)
+
+    @classmethod
+    def from_weights(cls, path: Path, device: str = "auto") -> CompenNetMethod:
+        """A fitted CompenNet from a state dict file (a run's ``model.pt`` or an official ``.pth``).
+
+        Raises
+        ------
+        ProcamError
+            If the file is missing, unreadable or does not fit the architecture.
+        """
         method = cls(device)
         model = CompenNet(surface=cls.surface)
-        load_weights(model, Path(run_dir) / CHECKPOINT, cls.name)
+        load_weights(model, Path(path), cls.name)
         method.model = model.to(method.device)
         return method
 
@@ -330,5 +344,6 @@ class CompenNetNoSurfMethod(CompenNetMethod):
     """CompenNet without the surface branch ("CompenNet w/o surf" of the paper)."""
 
     name = "compennet-nosurf"
+    official_name = "CompenNet_wo_surf"
     surface = False
 

@@ -224,6 +224,7 @@ class NayarMethod(Method):
     """
 
     name = "nayar"
+    official_name = "Nayar"
     options = NoOptions
 
     def __init__(self, device: str = "auto"):

@@ -41,7 +41,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from compensation.methods.base import (CHECKPOINT, Method, Options, load_state, load_weights,
-                                       resolve_device, save_state)
+                                       resolve_device, save_state, weights_file)
 from compensation.training.loop import train_loop
 from sim.errors import ProcamError
 
@@ -311,7 +311,8 @@ class Pix2PixOptions(Options):
     l1_weight: float = LAMBDA_L1
     """λ, the weight of the ℓ1 term beside the GAN loss (>= 0; published 100)."""
     init: str | None = None
-    """Run directory whose weights initialise both networks (same U-Net levels)."""
+    """Run directory, or state dict file (``.pth``), whose weights initialise both networks (same
+    U-Net levels)."""
 
     profiles: ClassVar[dict[str, dict]] = PIX2PIX_PROFILES
 
@@ -335,6 +336,7 @@ class Pix2PixMethod(Method):
     """
 
     name = "pix2pix"
+    official_name = "pix2pix"
     options = Pix2PixOptions
 
     def __init__(self, device: str = "auto"):
@@ -368,7 +370,7 @@ class Pix2PixMethod(Method):
         model = Pix2Pix(unet_levels(*data.size))
         init_normal(model)
         if opt.init is not None:
-            load_weights(model, Path(opt.init) / CHECKPOINT, self.name)
+            load_weights(model, weights_file(opt.init), self.name)
         self.model = model.to(device)
         gen, disc = model.generator, model.discriminator
         opt_g = torch.optim.Adam(gen.parameters(), lr=opt.lr, betas=BETAS, fused=True)

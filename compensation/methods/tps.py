@@ -320,6 +320,7 @@ class TPSMethod(Method):
     """
 
     name = "tps"
+    official_name = "TPS"
     options = TPSOptions
 
     def __init__(self, device: str = "auto"):
@@ -435,6 +436,7 @@ class TPSTexturedMethod(TPSMethod):
     """
 
     name = "tps-textured"
+    official_name = "TPS_textured"
     options = TPSTexturedOptions
 
     def training_pairs(self, data: SetupData, cfg: TrainConfig) -> PairSet:

@@ -1,4 +1,5 @@
-"""Run directories: train a method on one setup, record everything, load it back, compensate.
+"""Run directories: train a method on one setup, record everything, load it back, compensate (also
+with an official CompenNet checkpoint).
 
 A run directory holds::
 
@@ -8,7 +9,7 @@ A run directory holds::
     loss.png       the loss curve
     model.pt       network weights: a plain state dict (loaded with weights_only=True), or the
                    method's own state file (``tps.npz``, ``nayar.npz``)
-    metrics.json   test PSNR / RMSE / SSIM of π†(x̃) vs x on all test pairs, and uncompensated
+    metrics.json   test PSNR / RMSE / SSIM / ΔE of π†(x̃) vs x on all test pairs, and uncompensated
     examples.png   rows of s̃, x̃, π†(x̃), x for a few test pairs
 """
 from __future__ import annotations
@@ -23,16 +24,30 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from compensation.data import SURFACE_NAME, load_setup_data, to_tensor
+from compensation.data import load_setup_data, surface_path, to_tensor
 from compensation.evaluation.metrics import evaluate
 from compensation.methods import get_method
-from compensation.methods.base import Method, resolve_device
+from compensation.methods.base import Method, load_state, resolve_device
 from compensation.training.config import TrainConfig
-from sim.errors import ProcamError
+from sim.errors import DatasetError, ProcamError
 from sim.io import atomic_write, read_json, read_png, to_uint8, write_json, write_png
 
 CHECKPOINT_FILE = "checkpoint.pt"
 """Training state of an unfinished run, inside its :func:`partial_dir`."""
+SCORES = ("psnr", "rmse", "ssim", "deltaE")
+"""The scores ``metrics.json`` records (of :func:`~compensation.evaluation.metrics.evaluate`)."""
+SSIM_CONVENTION = "official"
+"""The SSIM convention of ``metrics.json`` (recorded there as ``ssim_convention``)."""
+
+
+def scores_are_current(metrics: dict) -> bool:
+    """Whether a run's ``metrics.json`` holds every score of :data:`SCORES` with SSIM in
+    :data:`SSIM_CONVENTION` (runs scored before are not reused by the bench and the demo).
+
+    >>> scores_are_current({"psnr": 20.0, "rmse": 0.2, "ssim": 0.7})
+    False
+    """
+    return metrics.get("ssim_convention") == SSIM_CONVENTION and all(k in metrics for k in SCORES)
 
 
 def _package_version() -> str:
@@ -157,7 +172,8 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
     -------
     dict
         The contents of ``metrics.json``: ``method``, ``setup``, ``psnr`` (dB), ``rmse``,
-        ``ssim`` of π†(x̃) vs x, ``uncompensated`` (the same for x̃ vs x), ``train_seconds``,
+        ``ssim``, ``deltaE`` of π†(x̃) vs x, ``ssim_convention``, ``uncompensated`` (the same
+        scores for x̃ vs x), ``train_seconds``,
         ``samples_per_second``, ``final_loss``, ``n_train``, ``n_test``, ``iters``, ``batch``.
 
     Raises
@@ -189,11 +205,11 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
     method = get_method(cfg.method)()
     stats = method.fit(data, resolved, progress, checkpoint)
     predicted = method.predict(data.test.captures, data.surface, batch_size=cfg.eval_batch)
-    scores = evaluate(predicted, data.test.frames, batch_size=cfg.eval_batch)
-    plain = evaluate(data.test.captures, data.test.frames, batch_size=cfg.eval_batch)
+    scores = evaluate(predicted, data.test.frames, cfg.eval_batch, SSIM_CONVENTION)
+    plain = evaluate(data.test.captures, data.test.frames, cfg.eval_batch, SSIM_CONVENTION)
     metrics = {"method": cfg.method, "setup": data.name,
-               **{k: float(scores[k]) for k in ("psnr", "rmse", "ssim")},
-               "uncompensated": {k: float(plain[k]) for k in ("psnr", "rmse", "ssim")},
+               **{k: float(scores[k]) for k in SCORES}, "ssim_convention": SSIM_CONVENTION,
+               "uncompensated": {k: float(plain[k]) for k in SCORES},
                "train_seconds": round(stats["seconds"], 3),
                "samples_per_second": round(stats["samples_per_second"], 3),
                "final_loss": stats["final_loss"], "n_train": len(data.train),
@@ -253,18 +269,35 @@ def run_size(config: dict) -> tuple[int, int]:
     return int(size["width"]), int(size["height"])
 
 
-def compensate(run_dir: str | Path, desired: torch.Tensor, surface: torch.Tensor | None = None,
+def load_checkpoint(path: str | Path, device: str = "auto") -> Method:
+    """A fitted CompenNet from a state dict file alone (``.pth``, e.g. an official checkpoint, with
+    or without DataParallel's ``module.`` prefix): with the surface branch when the file holds its
+    weights (``conv1_s`` …), else CompenNet w/o surf.
+
+    Raises
+    ------
+    ProcamError
+        If the file is missing, unreadable or not a CompenNet state dict.
+    """
+    state = load_state(Path(path))
+    name = "compennet" if "conv1_s.weight" in state else "compennet-nosurf"
+    return get_method(name).from_weights(Path(path), device)
+
+
+def compensate(source: str | Path, desired: torch.Tensor, surface: torch.Tensor | None = None,
                device: str = "auto") -> torch.Tensor:
-    """Projector frames x* = π†(y) that make the setup of a trained run show ``desired`` y.
+    """Projector frames x* = π†(y) that make the setup of a trained model show ``desired`` y.
 
     Parameters
     ----------
-    run_dir : path-like
-        A run directory written by :func:`train_run`.
+    source : path-like
+        A run directory written by :func:`train_run`, or a CompenNet state dict file (``.pth``,
+        :func:`load_checkpoint`).
     desired : torch.Tensor
         Desired appearance in the canonical projector view, float32 (N, 3, H, W) in [0, 1].
     surface : torch.Tensor, optional
-        Surface image s̃ (1, 3, H, W); defaults to the s̃ of the dataset the run was trained on.
+        Surface image s̃ (1, 3, H, W); for a run, defaults to the s̃ of the dataset it was trained
+        on; required for a state dict file.
     device : str
         Torch device for the network.
 
@@ -276,14 +309,24 @@ def compensate(run_dir: str | Path, desired: torch.Tensor, surface: torch.Tensor
     Raises
     ------
     ProcamError
-        If the run is unreadable, the default surface image is gone, or the shapes do not fit.
+        If the run or file is unreadable, the surface image is missing or gone, or the shapes do
+        not fit.
     """
-    method, config = load_run(run_dir, device)
+    source = Path(source)
+    if source.is_file():
+        if surface is None:
+            raise ProcamError(f"{source}: a state dict file holds no surface image; pass the surface "
+                              "image s̃ (the capture of the gray frame)")
+        method, batch = load_checkpoint(source, device), 64
+    else:
+        method, config = load_run(source, device)
+        batch = config["train"].get("eval_batch", 64)
     if surface is None:
-        path = Path(config["dataset"]) / "cam" / "warp" / "ref" / SURFACE_NAME
-        if not path.exists():
-            raise ProcamError(f"{path}: the surface image of the dataset run {run_dir} was trained "
-                              "on is gone; pass a surface image")
+        try:
+            path = surface_path(Path(config["dataset"]))
+        except DatasetError as exc:
+            raise ProcamError(f"{exc}: the surface image of the dataset run {source} was trained "
+                              "on is gone; pass a surface image") from None
         surface = to_tensor(read_png(path)[None])
     if desired.ndim != 4 or desired.shape[1] != 3:
         raise ProcamError(f"desired images: expected shape (N, 3, H, W), got {tuple(desired.shape)}")
@@ -293,5 +336,4 @@ def compensate(run_dir: str | Path, desired: torch.Tensor, surface: torch.Tensor
     if desired.shape[2] % 4 or desired.shape[3] % 4:
         raise ProcamError(f"desired images: {desired.shape[3]}x{desired.shape[2]} pixels; width and "
                           "height must be divisible by 4")
-    return method.predict(desired.float(), surface.float(),
-                          batch_size=config["train"].get("eval_batch", 64))
+    return method.predict(desired.float(), surface.float(), batch_size=batch)
