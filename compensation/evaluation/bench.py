@@ -31,7 +31,7 @@ from compensation.evaluation.tables import LOSSES, TABLE2, write_tables
 from compensation.methods import get_method
 from compensation.training.config import COMMON, PROFILES, TrainConfig, applicable, make_config
 from compensation.training.loop import TrainingInterrupted
-from compensation.training.runs import load_run, scores_are_current, train_run
+from compensation.training.runs import load_run, package_version, scores_are_current, train_run
 from sim.dataset import FrameSpec, image_name, write_setup
 from sim.errors import ProcamError
 from sim.io import read_json, to_uint8, write_json, write_png
@@ -137,7 +137,7 @@ def _train_config(cfg: BenchConfig, method: str, n_train: int, **job_values):
 
 def _reusable(run_dir: Path, train_cfg, setup_dir: Path) -> dict | None:
     """The metrics of a finished run made with exactly ``train_cfg`` (device aside) on the dataset
-    ``setup_dir`` and scored with today's metrics
+    ``setup_dir`` by this procam version and scored with today's metrics
     (:func:`~compensation.training.runs.scores_are_current`), else None."""
     if not (run_dir / "metrics.json").exists():
         return None
@@ -147,8 +147,9 @@ def _reusable(run_dir: Path, train_cfg, setup_dir: Path) -> dict | None:
     except (ProcamError, KeyError, TypeError):
         return None
     wanted = train_cfg.to_dict()
-    if config.get("dataset") != str(Path(setup_dir).resolve()) or not all(
-            done.get(k) == v for k, v in wanted.items() if k != "device"):
+    if (config.get("dataset") != str(Path(setup_dir).resolve())
+            or config.get("procam_version") != package_version()
+            or not all(done.get(k) == v for k, v in wanted.items() if k != "device")):
         return None
     metrics = read_json(run_dir / "metrics.json", "run metrics")
     return metrics if scores_are_current(metrics) else None

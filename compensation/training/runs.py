@@ -50,7 +50,8 @@ def scores_are_current(metrics: dict) -> bool:
     return metrics.get("ssim_convention") == SSIM_CONVENTION and all(k in metrics for k in SCORES)
 
 
-def _package_version() -> str:
+def package_version() -> str:
+    """The installed procam version (``unknown`` when run from a source tree without install)."""
     try:
         return version("procam")
     except PackageNotFoundError:
@@ -194,7 +195,7 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
                        options=options)
     height, width = data.size
     config = {"train": resolved.to_dict(), "dataset": str(setup_dir.resolve()), "setup": data.name,
-              "image_size": {"width": width, "height": height}, "procam_version": _package_version(),
+              "image_size": {"width": width, "height": height}, "procam_version": package_version(),
               "torch_version": torch.__version__, "device": _device_name(device)}
     partial = partial_dir(out_dir)
     try:
