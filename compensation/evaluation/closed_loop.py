@@ -7,11 +7,9 @@ the projector can produce on that surface (between the captures of a black and a
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from compensation.data import SetupData
@@ -20,7 +18,7 @@ from sim import seeds
 from sim.capture import Simulator
 from sim.dataset import canonical_size
 from sim.errors import DatasetError
-from sim.io import to_float, to_uint8
+from sim.io import read_json, to_float, to_uint8
 from sim.setup import load_setup
 
 REACH_TOLERANCE = 2 / 255
@@ -31,10 +29,7 @@ def simulator_for(setup_dir: str | Path) -> Simulator:
     """The simulator a dataset was rendered with: its resolved ``setup.toml`` plus the canonical
     size, fidelity and spp recorded in ``meta.json`` (a transport operator comes from the cache)."""
     setup_dir = Path(setup_dir)
-    try:
-        meta = json.loads((setup_dir / "meta.json").read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DatasetError(f"{setup_dir / 'meta.json'}: cannot read ({exc})") from None
+    meta = read_json(setup_dir / "meta.json", "dataset metadata")
     setup = load_setup(setup_dir / "setup.toml")
     size = canonical_size(meta)
     if size is None:
