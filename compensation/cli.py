@@ -198,7 +198,7 @@ def cmd_compensate(args: argparse.Namespace) -> None:
     import numpy as np
     import torch
 
-    from compensation.training.runs import compensate, load_run, run_size
+    from compensation.training.runs import compensate, read_run_config, run_size
     from sim.io import read_png, to_float, to_uint8, write_png
 
     def tensor(images: list) -> torch.Tensor:
@@ -211,7 +211,7 @@ def cmd_compensate(args: argparse.Namespace) -> None:
                               "gray frame, e.g. cam/warp/ref/img_gray.png), which also gives the size")
         h, w = surface.shape[:2]
     else:
-        w, h = run_size(load_run(args.run)[1])
+        w, h = run_size(read_run_config(args.run))
     names = [Path(p).with_suffix(".png").name for p in args.desired]
     if len(args.desired) > 1 and len(set(names)) < len(names):
         clash = sorted({n for n in names if names.count(n) > 1})

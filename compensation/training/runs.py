@@ -239,14 +239,14 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
     return metrics
 
 
-def load_run(run_dir: str | Path, device: str = "auto") -> tuple[Method, dict]:
-    """The fitted method of a run directory and its ``config.json``.
+def read_run_config(run_dir: str | Path) -> dict:
+    """A run directory's ``config.json``, checked for the keys a run is loaded by (method, size).
 
     Raises
     ------
     ProcamError
-        If the folder, its config or its checkpoint is missing or unreadable, or the method is
-        unknown.
+        If the folder or its config is missing or unreadable, a key is missing, or the method is
+        unknown; the message names the file and the key.
     """
     run_dir = Path(run_dir)
     config_file = run_dir / "config.json"
@@ -254,14 +254,26 @@ def load_run(run_dir: str | Path, device: str = "auto") -> tuple[Method, dict]:
         raise ProcamError(f"{run_dir}: not a run directory (no config.json)")
     config = read_json(config_file, "run configuration")
     try:
-        name = config["train"]["method"]
-        cls = get_method(name)
+        get_method(config["train"]["method"])
         run_size(config)
     except (KeyError, TypeError) as exc:
         raise ProcamError(f"{config_file}: missing or malformed key {exc}") from None
     except ProcamError as exc:
         raise ProcamError(f"{config_file}: {exc}") from None
-    return cls.load(run_dir, device), config
+    return config
+
+
+def load_run(run_dir: str | Path, device: str = "auto") -> tuple[Method, dict]:
+    """The fitted method of a run directory and its ``config.json`` (:func:`read_run_config`).
+
+    Raises
+    ------
+    ProcamError
+        If the config is unreadable (:func:`read_run_config`) or the checkpoint is missing or
+        unreadable.
+    """
+    config = read_run_config(run_dir)
+    return get_method(config["train"]["method"]).load(Path(run_dir), device), config
 
 
 def run_size(config: dict) -> tuple[int, int]:
