@@ -15,7 +15,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from sim import camera, registration, seeds, surfaces
+from sim import camera, projector, registration, seeds, surfaces
 from sim.cores import usable_cores
 from sim.fidelity import make_renderer, resolve
 from sim.setup import Setup
@@ -100,9 +100,21 @@ class Simulator:
         self.timings["registration"] += time.perf_counter() - t0
 
     def linear(self, frame: np.ndarray, stream: int, index: int) -> np.ndarray:
-        """Linear camera radiance (float32, camera resolution) of one projector frame."""
+        """Linear camera radiance (float32, camera resolution) of one projector frame.
+
+        The projector's contribution is scaled by the lamp's brightness in this capture
+        (:func:`sim.projector.lamp_gain`: flicker per capture, drift at test time); the ambient
+        light is not.
+        """
         t0 = time.perf_counter()
-        out = self.renderer.radiance(frame, seeds.mitsuba_seed(self.setup.render.seed, stream, index))
+        r = self.setup.render
+        mitsuba_seed = seeds.mitsuba_seed(r.seed, stream, index)
+        gain = projector.lamp_gain(self.setup.projector, r.seed, stream, index)
+        if gain == 1.0:
+            out = self.renderer.radiance(frame, mitsuba_seed)
+        else:
+            out = (self.renderer.projector_radiance(self.renderer.emit(frame), mitsuba_seed)
+                   * np.float32(gain) + self.renderer.ambient_radiance())
         self.timings["render"] += time.perf_counter() - t0
         return out
 

@@ -12,6 +12,7 @@ error against the exact map can be reported.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -20,6 +21,7 @@ import numpy as np
 
 from sim import geometry, surfaces
 from sim.errors import SetupError
+from sim.projector import frame_area
 from sim.setup import Setup
 
 MIN_VISIBLE_FRACTION = 0.5
@@ -55,11 +57,19 @@ def exact_map(setup: Setup, size: tuple[int, int]) -> WarpMap:
     setup : Setup
         The setup (projector and camera poses, surface geometry).
     size : (int, int)
-        Canonical (width, height) in pixels. The projector's image area keeps the aspect of its
-        own resolution: when the two aspects differ, canonical pixels are not square.
+        Canonical (width, height) in pixels: the view of the frame's area on the panel
+        (:func:`sim.projector.frame_area`; the whole panel with ``projector.keep_aspect = false``,
+        when canonical pixels are not square if the two aspects differ).
     """
     surface = surfaces.surface_for(setup.surface)
-    proj = geometry.Pinhole.from_config(setup.projector, size)
+    p = setup.projector
+    x0, y0, w, h = frame_area(p.resolution, size, p.keep_aspect)
+    if (w, h) == tuple(p.resolution):
+        proj = geometry.Pinhole.from_config(p, size)
+    else:  # the centred sub-window of the panel the frame fills (square panel pixels)
+        fov = math.degrees(2 * math.atan(math.tan(math.radians(p.fov) / 2) * w / p.resolution[0]))
+        proj = geometry.Pinhole(np.asarray(p.position, float), np.asarray(p.look_at, float),
+                                np.asarray(p.up, float), fov, int(size[0]), int(size[1]), w / h)
     cam = geometry.Pinhole.from_config(setup.camera)
     rays = proj.pixel_rays()
     t, idx = surface.intersect(proj.position, rays)

@@ -6,10 +6,12 @@ The scene is built once; each projector frame is swapped into the projector's te
 """
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
+from dataclasses import replace
+
 from sim import geometry, projector, scene, seeds, surfaces
+from sim.errors import ProcamError
 from sim.io import to_float
 from sim.setup import Setup
 from sim.variant import use_variant
@@ -25,6 +27,52 @@ def throw_distance(setup: Setup) -> float:
     if not np.isfinite(t[0]):
         return float(np.linalg.norm(p.look_at - p.position))
     return float(t[0])
+
+
+def lens_for(setup: Setup) -> projector.Lens:
+    """The projector's lens (:class:`sim.projector.Lens`) in a setup.
+
+    The defocus disk of each pixel follows the depth of the surface point its ray hits
+    (:meth:`sim.surfaces.base.Surface.projector_depth`; a pixel that misses the surface takes the
+    median depth of those that hit). The padding covers the widest blur: the Gaussian's reach
+    plus the largest disk radius over the padded grid.
+
+    Parameters
+    ----------
+    setup : Setup
+        The setup (``projector.psf_sigma``, ``aperture``, ``focus_distance``, pose; surface).
+
+    Returns
+    -------
+    projector.Lens
+        A sharp lens without padding when ``psf_sigma`` and ``aperture`` are 0.
+    """
+    p = setup.projector
+    w, h = p.resolution
+    reach = projector.gaussian_radius(p.psf_sigma)
+    if p.aperture == 0:
+        return projector.Lens((w, h), reach, p.psf_sigma)
+    surface = surfaces.surface_for(setup.surface)
+    pad, diameters = 0, None
+    for _ in range(4):  # the padded grid's own disks may need a little more padding
+        grid = geometry.Pinhole.from_config(p, (w + 2 * pad, h + 2 * pad))
+        grid = replace(grid, fov=projector.Lens((w, h), pad).fov(p.fov), aspect=None)
+        depth = surface.projector_depth(grid)
+        hit = np.isfinite(depth) & (depth > 0)
+        fill = float(np.median(depth[hit])) if hit.any() else p.focus_distance
+        diameters = projector.defocus_blur_diameter_px(
+            p.aperture, p.focus_distance, np.where(hit, depth, fill), p.fov, w)
+        need = reach + projector.disk_radius(float(diameters.max()))
+        if need <= pad:
+            break
+        pad = need
+    else:
+        raise ProcamError(f"setup {setup.name!r}: the projector's defocus padding does not settle "
+                          f"(projector.aperture = {p.aperture} m is far too large for the scene)")
+    if pad > need:  # crop to the padding needed
+        c = pad - need
+        diameters, pad = diameters[c:-c, c:-c], need
+    return projector.Lens((w, h), pad, p.psf_sigma, np.ascontiguousarray(diameters, np.float32))
 
 
 class Renderer:
@@ -52,7 +100,9 @@ class Renderer:
         self.fidelity = fidelity or scene.resolve_fidelity(setup)
         self.spp = int(spp or setup.render.spp)
         self.albedo = scene.albedo_texture(setup)
-        self._scene = mi.load_dict(scene.projector_scene(setup, self.albedo, self.fidelity, self.spp))
+        self.lens = lens_for(setup)
+        self._scene = mi.load_dict(scene.projector_scene(setup, self.albedo, self.fidelity, self.spp,
+                                                         self.lens.pad, self.lens.fov(setup.projector.fov)))
         self._params = mi.traverse(self._scene)
         self._ambient: np.ndarray | None = None
         p = setup.projector
@@ -65,22 +115,21 @@ class Renderer:
         Parameters
         ----------
         frame : numpy.ndarray
-            Projector input, uint8 (H, W, 3) or float in [0, 1] (encoded), any size: it is
-            resized to the projector's resolution as the projector's own scaler would.
+            Projector input, uint8 (H, W, 3) or float in [0, 1] (encoded), any size: the
+            projector's scaler resamples it onto the panel (:func:`sim.projector.scale_to_panel`).
 
         Returns
         -------
         numpy.ndarray
-            float32 (Hp, Wp, 3): response, black level, primaries mixing, then the defocus blur.
+            float32 (Hp + 2 pad, Wp + 2 pad, 3) with ``pad = self.lens.pad``: response, black
+            level, primaries mixing, then the lens (PSF and depth-dependent defocus).
         """
         frame = np.asarray(frame)
         x = to_float(frame) if frame.dtype == np.uint8 else frame.astype(np.float32)
-        w, h = self.setup.projector.resolution
-        if x.shape[:2] != (h, w):
-            shrink = x.shape[0] > h or x.shape[1] > w
-            x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-        irr = projector.projector_irradiance(np.clip(x, 0.0, 1.0), self.setup.projector)
-        return projector.defocus(irr, self.defocus_px)
+        p = self.setup.projector
+        x = projector.scale_to_panel(x, p.resolution, p.keep_aspect)
+        irr = projector.projector_irradiance(np.clip(x, 0.0, 1.0), p)
+        return self.lens.apply(irr)
 
     def projector_radiance(self, irradiance: np.ndarray, seed: int = 0) -> np.ndarray:
         """Radiance due to the projector alone for a relative irradiance texture (linear).

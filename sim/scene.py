@@ -95,18 +95,24 @@ def sensor(setup: Setup, spp: int) -> dict:
     return d
 
 
-def projector_scene(setup: Setup, albedo: np.ndarray, fidelity: str, spp: int) -> dict:
-    """Scene lit by the projector alone; its irradiance texture starts black (swap frames later)."""
+def projector_scene(setup: Setup, albedo: np.ndarray, fidelity: str, spp: int, pad: int = 0,
+                    fov: float | None = None) -> dict:
+    """Scene lit by the projector alone; its irradiance texture starts black (swap frames later).
+
+    ``pad`` pixels on each side widen the emitter's texture beyond the panel, with the horizontal
+    field of view ``fov`` (degrees; default ``projector.fov``) of the padded texture
+    (:class:`sim.projector.Lens`)."""
     import mitsuba as mi
 
     p = setup.projector
-    w, h = p.resolution
+    w, h = p.resolution[0] + 2 * pad, p.resolution[1] + 2 * pad
     integrator = integrator_for(setup, fidelity)
     if fidelity == "direct":
         integrator["bsdf_samples"] = 0  # a delta emitter cannot be hit by BSDF sampling
     return {"type": "scene", "integrator": integrator, "sensor": sensor(setup, spp),
             **surface_shapes(setup, albedo),
-            PROJECTOR_KEY: {"type": "projector", "fov": float(p.fov), "to_world": _look_at(p),
+            PROJECTOR_KEY: {"type": "projector", "fov": float(p.fov if fov is None else fov),
+                            "to_world": _look_at(p),
                             "scale": float(p.brightness),
                             "irradiance": {"type": "bitmap", "raw": True, "filter_type": "nearest",
                                            "wrap_mode": "clamp",

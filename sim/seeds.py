@@ -41,6 +41,10 @@ CALIBRATION = 98
 """The spaced-dot renders that calibrate a light-transport operator (index 0: one seed for all)."""
 AMBIENT = 99
 """The ambient-only image of a setup (index 0)."""
+TEST_TIME = (TEST,) + tuple(range(CLOSED_LOOP, PROBE))
+"""Streams captured at test time (test frames, closed loop and its refinement rounds): the lamp's
+``projector.drift`` applies to them, not to the calibration captures (reference, training,
+registration)."""
 
 # ------------------------------------------------------------------------- image generator
 
@@ -54,6 +58,10 @@ TEST_FRAMES = 1
 """Image-generator stream of a dataset's test frames."""
 PROBE_FRAMES = 7
 """Image-generator stream of the ``natural`` probe frame (seed: the setup's ``render.seed``)."""
+
+LAMP_TAG = 3
+"""Last seed word of a capture's lamp flicker (:func:`lamp_rng`): never shares a state with its
+camera noise (:func:`noise_rng`)."""
 
 # ------------------------------------------------------------------------- fixed seeds
 
@@ -77,3 +85,19 @@ def mitsuba_seed(seed: int, stream: int, index: int) -> int:
 def noise_rng(seed: int, stream: int, index: int) -> np.random.Generator:
     """Generator of the camera noise of one capture (setup seed, stream, frame index)."""
     return np.random.default_rng([seed, stream, index])
+
+
+def lamp_rng(seed: int, stream: int, index: int) -> np.random.Generator:
+    """Generator of the lamp flicker of one capture (setup seed, stream, frame index)."""
+    return np.random.default_rng([seed, stream, index, LAMP_TAG])
+
+
+def test_time(stream: int) -> bool:
+    """True for a capture stream of :data:`TEST_TIME`.
+
+    Examples
+    --------
+    >>> test_time(TEST), test_time(TRAIN), test_time(CLOSED_LOOP + 2)
+    (True, False, True)
+    """
+    return stream in TEST_TIME

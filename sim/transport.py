@@ -19,8 +19,10 @@ and can be measured from a handful of Mitsuba renders:
    frame and refuses an operator that misses it. The Monte-Carlo error of the calibration spp is
    therefore *frozen* into ``T``: the same for every capture instead of fresh per capture.
 
-The projector's response, black level, primaries mixing and defocus pre-blur are applied before
-``T`` (:meth:`sim.render.Renderer.emit`), so ``T`` is the scene's light transport alone.
+The projector's scaler, response, black level, primaries mixing and lens (PSF and the defocus of
+each pixel's depth) are applied before ``T`` (:meth:`sim.render.Renderer.emit`), so ``T`` is the
+scene's light transport alone; its projector side is the lens's padded grid
+(:class:`sim.projector.Lens`), which keeps the light blurred past the panel's border.
 Inter-reflection (a corner) makes ``T`` dense: this level declines such setups
 (:func:`check_supported`) and ``auto`` falls back to path tracing.
 """
@@ -41,7 +43,7 @@ import torch
 from sim import geometry, seeds, surfaces
 from sim.errors import ProcamError, SetupError
 from sim.io import atomic_write
-from sim.render import Renderer
+from sim.render import Renderer, lens_for
 from sim.setup import Setup, dump_setup
 
 MAX_SPACING = 12
@@ -86,6 +88,18 @@ def _aperture_offsets(radius: float) -> np.ndarray:
     return radius * np.stack([np.cos(phi), np.sin(phi)], axis=1)
 
 
+def emitter_pinhole(setup: Setup) -> geometry.Pinhole:
+    """The projector's emitter as a pinhole: the lens's padded grid (:func:`sim.render.lens_for`),
+    the panel itself when the lens is sharp."""
+    p = setup.projector
+    lens = lens_for(setup)
+    if lens.pad == 0:
+        return geometry.Pinhole.from_config(p)
+    w, h = lens.size
+    return geometry.Pinhole(np.asarray(p.position, float), np.asarray(p.look_at, float),
+                            np.asarray(p.up, float), lens.fov(p.fov), w, h)
+
+
 def footprint_ranges(setup: Setup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The projector pixels each camera pixel can see, from the scene geometry.
 
@@ -104,7 +118,7 @@ def footprint_ranges(setup: Setup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     -------
     lo, hi : numpy.ndarray
         int64 (Hc, Wc, 2) first and last projector (column, row) index of each camera pixel's
-        footprint, clipped to the projector frame.
+        footprint, clipped to the emitter's grid (the panel plus the lens's padding).
     seen : numpy.ndarray
         bool (Hc, Wc), True where the footprint touches the surface at all.
     """
@@ -118,7 +132,7 @@ def footprint_ranges(setup: Setup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     dirs = corners.pixel_rays()
     frame = cam.frame()
     surface = surfaces.surface_for(setup.surface)
-    proj = geometry.Pinhole.from_config(setup.projector)
+    proj = emitter_pinhole(setup)
     lo = np.full((hc + 1, wc + 1, 2), np.inf)
     hi = np.full((hc + 1, wc + 1, 2), -np.inf)
     radius = cam_cfg.aperture_radius
@@ -333,7 +347,7 @@ class TransportOperator:
                 f"pixels across (camera pixels much larger than projector pixels, or a strong camera "
                 f"defocus), which would take {s * s} calibration renders (limit {MAX_SPACING ** 2}); "
                 'use "direct" or "auto"')
-        wp, hp = setup.projector.resolution
+        wp, hp = renderer.lens.size
         wc, hc = setup.camera.resolution
         seed = seeds.mitsuba_seed(setup.render.seed, seeds.CALIBRATION, 0)
         cam_idx = np.flatnonzero(seen)

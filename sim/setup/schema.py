@@ -70,7 +70,22 @@ class ProjectorConfig:
     aperture: float = 0.0
     """Metres, lens aperture diameter for defocus (>= 0); 0 is a pinhole (sharp)."""
     focus_distance: float = 1.0
-    """Metres (> 0), distance at which the projector is in focus."""
+    """Metres (> 0), depth (along the optical axis) at which the projector is in focus; each
+    surface point is blurred by the thin-lens disk of its own depth."""
+    keep_aspect: bool = True
+    """True: the scaler resamples an input frame to cover the panel keeping the frame's aspect
+    ratio, centred, the rest of the panel at the black level (a 256x256 frame on an 800x600 panel
+    fills the central 600x600); False: stretched to fill the whole panel. A frame of the panel's
+    aspect fills the panel either way."""
+    psf_sigma: float = 0.0
+    """Native projector pixels, in [0, 50]: standard deviation of the lens's Gaussian point-spread
+    function (0: sharp)."""
+    flicker: float = 0.0
+    """Relative standard deviation of the lamp brightness from one capture to the next, in
+    [0, 0.5] (0: steady)."""
+    drift: float = 0.0
+    """Relative change of the lamp brightness between calibration captures (reference, training,
+    registration) and test-time captures (test and closed loop), in (-1, 1) (0: none)."""
 
 
 @dataclass(frozen=True)

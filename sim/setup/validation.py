@@ -155,6 +155,12 @@ class _Table:
             raise self.error(name, value, f"expected one of {', '.join(shown(o) for o in options)}")
         return value
 
+    def boolean(self, name: str) -> bool:
+        value = self.get(name)
+        if not isinstance(value, bool):
+            raise self.error(name, value, "expected true or false")
+        return value
+
     def string(self, name: str) -> str:
         value = self.get(name)
         if not isinstance(value, str):
@@ -228,6 +234,10 @@ def _projector(t: _Table) -> ProjectorConfig:
         mixing=t.matrix("mixing", _NON_NEGATIVE),
         aperture=t.number("aperture", _NON_NEGATIVE, "metres"),
         focus_distance=t.number("focus_distance", _POSITIVE, "metres"),
+        keep_aspect=t.boolean("keep_aspect"),
+        psf_sigma=t.number("psf_sigma", _Range(0, 50), "projector pixels"),
+        flicker=t.number("flicker", _Range(0, 0.5), "(relative brightness std)"),
+        drift=t.number("drift", _Range(-1, 1, True, True), "(relative brightness change)"),
     )
 
 
