@@ -17,7 +17,7 @@ import numpy as np
 
 from sim import camera, projector, registration, seeds, surfaces
 from sim.cores import usable_cores
-from sim.fidelity import make_renderer, resolve
+from sim.fidelity import make_renderer, resolve, with_depth
 from sim.setup import Setup
 
 Item = TypeVar("Item")
@@ -70,9 +70,11 @@ class Simulator:
         Canonical (width, height) in pixels: the size of projector frames and warped captures.
     fidelity, spp : optional
         Override the setup's level and samples per pixel (:func:`sim.fidelity.resolve`; ``auto``
-        measures its choice first).
+        measures its choice first, path depth included).
     cache_dir : Path, optional
         Where the ``transport`` level keeps its calibrated operator.
+    max_depth : int, optional
+        Path depth of a ``path`` level (a dataset's ``auto`` choice); default ``render.max_depth``.
 
     Attributes
     ----------
@@ -84,15 +86,16 @@ class Simulator:
     """
 
     def __init__(self, setup: Setup, size: tuple[int, int], fidelity: str | None = None,
-                 spp: int | None = None, cache_dir=None):
+                 spp: int | None = None, cache_dir=None, max_depth: int | None = None):
         self.setup = setup
         self.size = (int(size[0]), int(size[1]))
         self.timings: dict[str, float] = defaultdict(float)
         t0 = time.perf_counter()
-        self.choice = resolve(setup, fidelity, spp)
+        self.choice = resolve(setup, fidelity, spp, max_depth=max_depth)
         self.timings["fidelity"] += time.perf_counter() - t0
         t0 = time.perf_counter()
-        self.renderer = make_renderer(setup, self.choice.level, self.choice.spp, cache_dir)
+        self.renderer = make_renderer(with_depth(setup, self.choice.max_depth), self.choice.level,
+                                      self.choice.spp, cache_dir)
         self.renderer.ambient_radiance()
         self.timings["scene"] += time.perf_counter() - t0
         t0 = time.perf_counter()

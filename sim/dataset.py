@@ -494,7 +494,7 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
         "drjit_version": version("drjit"),
         "variant": r.variant,
         "fidelity": r.fidelity,
-        "integrator": describe(setup, r.fidelity),
+        "integrator": describe(r.setup, r.fidelity),
         "spp": r.spp,
         "fidelity_choice": sim.choice.as_dict(),
         "transport": ({**asdict(r.operator.info), "nonzeros": r.operator.nnz,

@@ -9,9 +9,12 @@
 
 each at some samples per pixel. ``auto`` measures instead of guessing (:func:`choose`): it renders
 probe frames of the test-image classes that break cheap models (:data:`PROBE_CLASSES`) through a
-window of the camera, compares the candidates with a converged path-traced reference and picks the
-cheapest one whose error stays below :data:`FLOOR_FRACTION` of the camera's own noise floor (shot
-and read noise plus 8-bit quantisation, :func:`noise_floor`) for every class.
+window of the camera, compares the candidates with a converged path-traced reference (path depth
+:data:`AUTO_REFERENCE_DEPTH`) and picks the cheapest one whose error stays below
+:data:`FLOOR_FRACTION` of the camera's own noise floor (shot and read noise plus 8-bit
+quantisation, :func:`noise_floor`) for every class. Where surfaces light each other it picks the
+path depth the same way (:data:`DEPTH_LADDER`): a depth that drops light the camera would see
+fails against the deeper reference.
 
 Errors are in *signal* units — radiance times exposure and white balance, clipped to the full
 well [0, 1] — the units of the camera's noise model, so they compare directly with it.
@@ -45,6 +48,17 @@ error below the camera's own noise floor. Added in quadrature such an error rais
 total noise by at most sqrt(2) - 1 = 41 %; with ``transport`` it is the same in every capture."""
 AUTO_REFERENCE_SPP = 256
 """Samples per pixel of ``auto``'s path-traced reference (two renders of about half as many)."""
+AUTO_REFERENCE_DEPTH = 16
+"""Path depth of ``auto``'s reference: converged, since each further bounce between a corner's
+wings carries at most albedo × (form factor between the wings, at most 1/2 for a 90-degree
+corner) of the last, so light beyond 16 bounces is below 0.4^13 ≈ 7e-6 of the direct light."""
+DEPTH_LADDER = (3, 4, 5, 6, 8, 12)
+"""Path depths ``auto`` tries for a surface that lights itself (those at least
+``render.max_depth``)."""
+DEPTH_GAIN = 0.9
+"""``auto`` keeps a deeper path only where it lowers the worst error over the noise floor to at
+most this fraction of the shallower one's (less is within the Monte-Carlo noise of the
+comparison)."""
 PROBE_WINDOW = 64
 """Side in camera pixels of the central window ``auto`` renders (Monte-Carlo error is per pixel,
 so a window measures it at a fraction of the cost)."""
@@ -90,6 +104,13 @@ def check_spp(setup: Setup, spp: int | None) -> None:
     if spp is not None and spp < 1:
         raise SetupError(f"setup {setup.name!r}: spp (--spp) = {spp}: expected samples per pixel "
                          ">= 1")
+
+
+def with_depth(setup: Setup, max_depth: int | None) -> Setup:
+    """The setup with ``render.max_depth`` replaced (unchanged for None)."""
+    if max_depth is None or max_depth == setup.render.max_depth:
+        return setup
+    return replace(setup, render=replace(setup.render, max_depth=int(max_depth)))
 
 
 def describe(setup: Setup, level: str) -> str:
@@ -261,8 +282,8 @@ class Probe:
     classes : sequence of str
         Probe classes (:data:`PROBE_CLASSES`), one frame each.
     reference_spp : int
-        Samples per pixel of the path-traced reference (at least depth 3), split over two
-        independent renders (:func:`half_spp`).
+        Samples per pixel of the path-traced reference (depth :data:`AUTO_REFERENCE_DEPTH` or
+        ``render.max_depth`` if deeper), split over two independent renders (:func:`half_spp`).
     window : int or None
         Side of the central camera window rendered (:func:`window_setup`); None: the whole image.
 
@@ -284,9 +305,8 @@ class Probe:
                  window: int | None = PROBE_WINDOW):
         self.setup = window_setup(setup, window)
         self.reference_spp = int(reference_spp)
-        ref = Renderer(replace(self.setup, render=replace(self.setup.render,
-                                                          max_depth=max(3, self.setup.render.max_depth))),
-                       "path", half_spp(self.reference_spp))
+        self.reference_depth = max(AUTO_REFERENCE_DEPTH, self.setup.render.max_depth)
+        ref = Renderer(with_depth(self.setup, self.reference_depth), "path", half_spp(self.reference_spp))
         self._emit = ref.emit
         self._ambient = ref.ambient_radiance()
         size = tuple(setup.projector.resolution)
@@ -378,7 +398,11 @@ class Choice:
     noise_floor : float or None
         ``auto``: the camera's RMS noise of that class (linear signal units).
     candidates : tuple of dict
-        ``auto``: every candidate measured, cheapest first, with its errors per class.
+        ``auto``: every candidate measured, in the order tried, with its path depth and its
+        errors per class (linear signal units).
+    max_depth : int or None
+        Path depth to render with, chosen by ``auto`` for a surface that lights itself (or
+        carried over from a dataset's choice); None: ``render.max_depth``.
     """
 
     level: str
@@ -387,12 +411,13 @@ class Choice:
     predicted_error: float | None = None
     noise_floor: float | None = None
     candidates: tuple = field(default=(), compare=False)
+    max_depth: int | None = None
 
     def as_dict(self) -> dict:
         """JSON-ready form for meta.json."""
         return {"level": self.level, "spp": self.spp, "reason": self.reason,
                 "predicted_error": self.predicted_error, "noise_floor": self.noise_floor,
-                "candidates": list(self.candidates)}
+                "max_depth": self.max_depth, "candidates": list(self.candidates)}
 
 
 def _worst(errors: dict, floors: dict) -> tuple[str, float]:
@@ -432,22 +457,19 @@ def choose(setup: Setup, spp: int | None = None, n_captures: int = DATASET_CAPTU
     inter = surfaces.surface_for(setup.surface).interreflection
     level = "path" if inter else "transport"
     if inter:
-        why_level = f"its surfaces light each other: path tracing (depth {setup.render.max_depth})"
-    else:
-        s = transport.dot_spacing(*transport.footprint_ranges(setup))
-        if s > transport.MAX_SPACING or s * s + 1 >= n_captures:
-            level = "direct"
-        why_level = "no surface sees another: direct light is exact, " + (
-            f"applied as a light-transport operator ({s * s} calibration renders)"
-            if level == "transport" else
-            f"rendered per capture (a transport calibration would take {s * s} renders)")
+        return _choose_path(setup, ladder, probe)
+    s = transport.dot_spacing(*transport.footprint_ranges(setup))
+    if s > transport.MAX_SPACING or s * s + 1 >= n_captures:
+        level = "direct"
+    why_level = "no surface sees another: direct light is exact, " + (
+        f"applied as a light-transport operator ({s * s} calibration renders)"
+        if level == "transport" else
+        f"rendered per capture (a transport calibration would take {s * s} renders)")
     candidates = []
     for n in ladder:
         errs = probe.errors(make_renderer(probe.setup, level, n))
         cls, frac = _worst(errs, probe.floors)
-        candidates.append({"level": level, "spp": n, "worst_class": cls,
-                           "error_over_floor": round(frac, 4),
-                           "errors": {k: round(v["rmse"], 7) for k, v in errs.items()}})
+        candidates.append(_candidate(level, n, None, cls, frac, errs))
         if frac <= FLOOR_FRACTION:
             return Choice(level, n, f"{why_level}; {n} spp is the fewest whose error is at most "
                           f"{FLOOR_FRACTION:g} x the camera noise for every probe class (worst: "
@@ -458,8 +480,60 @@ def choose(setup: Setup, spp: int | None = None, n_captures: int = DATASET_CAPTU
                   "samples tried", errs[cls]["rmse"], probe.floors[cls], tuple(candidates))
 
 
+def _candidate(level: str, spp: int, depth: int | None, cls: str, frac: float, errs: dict) -> dict:
+    """One measured candidate, JSON-ready."""
+    return {"level": level, "spp": spp, "max_depth": depth, "worst_class": cls,
+            "error_over_floor": round(frac, 4),
+            "errors": {k: round(v["rmse"], 7) for k, v in errs.items()}}
+
+
+def _choose_path(setup: Setup, ladder: tuple[int, ...], probe: Probe) -> Choice:
+    """``auto`` for a surface that lights itself: path tracing, its spp and depth measured.
+
+    For each spp of ``ladder`` the current depth (first ``render.max_depth``) is measured; if it
+    fails, the next depth of :data:`DEPTH_LADDER` too, and the deeper one is kept while it lowers
+    the worst error over the floor to at most :data:`DEPTH_GAIN` of the shallower one (the light
+    it adds is above the Monte-Carlo noise at this spp); otherwise the next spp is tried at the
+    current depth. The first candidate at most :data:`FLOOR_FRACTION` × the noise floor for every
+    class is chosen; if none is, the last spp at the depth kept.
+    """
+    depths = sorted({setup.render.max_depth, *(d for d in DEPTH_LADDER if d > setup.render.max_depth)})
+    why = (f"its surfaces light each other: path tracing, measured against a depth "
+           f"{probe.reference_depth} reference")
+    candidates: list[dict] = []
+    measured: list[tuple[float, int, int, str, dict]] = []
+
+    def measure(n: int, depth: int) -> float:
+        errs = probe.errors(make_renderer(with_depth(probe.setup, depth), "path", n))
+        cls, frac = _worst(errs, probe.floors)
+        candidates.append(_candidate("path", n, depth, cls, frac, errs))
+        measured.append((frac, n, depth, cls, errs))
+        return frac
+
+    def chosen(frac: float, n: int, depth: int, cls: str, errs: dict, how: str) -> Choice:
+        return Choice("path", n, f"{why}; {how} (worst: {cls}, {frac:.2f} x the camera noise)",
+                      errs[cls]["rmse"], probe.floors[cls], tuple(candidates), depth)
+
+    i = 0
+    for n in ladder:
+        frac = measure(n, depths[i])
+        while frac > FLOOR_FRACTION and i + 1 < len(depths):
+            deeper = measure(n, depths[i + 1])
+            if deeper > FLOOR_FRACTION and deeper > DEPTH_GAIN * frac:
+                break  # the light a deeper path adds is lost in this spp's noise: more samples first
+            i, frac = i + 1, deeper
+        if frac <= FLOOR_FRACTION:  # the last candidate measured
+            return chosen(*measured[-1], f"{n} spp and depth {depths[i]} are the fewest samples, then the "
+                          f"shallowest depth, whose error is at most {FLOOR_FRACTION:g} x the camera "
+                          "noise for every probe class")
+    last = next(m for m in reversed(measured) if m[2] == depths[i])
+    return chosen(*last, f"no spp and depth tried reaches {FLOOR_FRACTION:g} x the camera noise: "
+                  f"using the most samples tried and depth {depths[i]}, the deepest that lowered "
+                  "the error")
+
+
 def resolve(setup: Setup, fidelity: str | None = None, spp: int | None = None,
-            n_captures: int = DATASET_CAPTURES) -> Choice:
+            n_captures: int = DATASET_CAPTURES, max_depth: int | None = None) -> Choice:
     """The level and spp to render a setup with.
 
     Parameters
@@ -472,6 +546,9 @@ def resolve(setup: Setup, fidelity: str | None = None, spp: int | None = None,
         Overrides ``setup.render.spp`` (for ``auto``: the only spp tried).
     n_captures : int
         Captures to render (``auto`` amortises a calibration over them).
+    max_depth : int, optional
+        Overrides ``render.max_depth`` of a ``path`` level (a dataset's ``auto`` choice, carried
+        over to its closed loop); ``auto`` chooses its own.
 
     Raises
     ------
@@ -479,9 +556,10 @@ def resolve(setup: Setup, fidelity: str | None = None, spp: int | None = None,
         If the level cannot represent the setup (:func:`check_level`) or ``spp`` is below 1.
     """
     level = fidelity or setup.render.fidelity
-    check_level(setup, level)
+    check_level(with_depth(setup, max_depth), level)
     check_spp(setup, spp)
     if level == "auto":
         return choose(setup, spp, n_captures)
     return Choice(level, int(spp or setup.render.spp), "asked for" + (
-        " (--fidelity)" if fidelity else " (render.fidelity)"))
+        " (--fidelity)" if fidelity else " (render.fidelity)"),
+        max_depth=max_depth if level == "path" else None)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -246,3 +247,53 @@ def test_lamp_scales_captures_but_not_the_calibration():
 def test_bad_projector_keys_are_named(key, value, expected):
     with pytest.raises(SetupError, match=rf"projector\.{key} = .*{re.escape(expected)}"):
         tiny_setup(projector={key: value})
+
+
+# ----------------------------------------------------------------------------------- path depth
+
+def _lit_corner(read_noise: float):
+    return tiny_setup(surface={"geometry": "corner", "size": [1.0, 1.0], "albedo_scale": 0.9},
+                      projector={"resolution": [32, 32]},
+                      camera={"resolution": [32, 32], "position": [0.0, 0.0, 1.2], "read_noise": read_noise},
+                      render={"fidelity": "auto", "max_depth": 3})
+
+
+@pytest.fixture(scope="module")
+def corner_probe():
+    """A converged reference of a bright corner (depth 16, 1024 spp), two probe classes."""
+    from sim import fidelity
+
+    return fidelity.Probe(_lit_corner(0.01), classes=("smooth", "natural"), reference_spp=1024,
+                          window=None)
+
+
+def test_depth_three_misses_interreflected_light(corner_probe):
+    """Independently of auto: a depth-3 render of a bright corner lacks a percent or more of the
+    converged radiance (the light of two and more bounces between the wings)."""
+    setup = corner_probe.setup
+    frame = corner_probe.frames["smooth"]
+    means = {}
+    for depth in (3, 16):
+        r = Renderer(replace(setup, render=replace(setup.render, max_depth=depth)), "path", 256)
+        means[depth] = float(r.projector_radiance(r.emit(frame), 5).mean())
+    assert 0.01 < 1 - means[3] / means[16] < 0.15
+
+
+def test_auto_picks_the_path_depth_by_measurement(corner_probe):
+    from sim import fidelity
+
+    assert corner_probe.reference_depth == fidelity.AUTO_REFERENCE_DEPTH
+    choice = fidelity.choose(corner_probe.setup, spp=64, probe=corner_probe)
+    depths = [(c["spp"], c["max_depth"], c["error_over_floor"]) for c in choice.candidates]
+    # depth 3 misses more light than the camera's noise; one more bounce brings it below
+    assert depths[0][:2] == (64, 3) and depths[0][2] > 1.2
+    assert choice.max_depth == 4 and depths[-1][:2] == (64, 4) and depths[-1][2] <= 1.0
+    assert choice.as_dict()["max_depth"] == 4 and "depth 4" in choice.reason
+    assert choice.predicted_error <= choice.noise_floor
+
+
+def test_simulator_renders_at_the_recorded_depth():
+    setup = _lit_corner(0.01)
+    sim = Simulator(replace(setup, camera=replace(setup.camera, resolution=(16, 16))), (16, 16),
+                    "path", 1, max_depth=5)
+    assert sim.renderer.setup.render.max_depth == 5 and sim.choice.max_depth == 5

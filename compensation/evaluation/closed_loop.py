@@ -27,15 +27,15 @@ REACH_TOLERANCE = 2 / 255
 
 def simulator_for(setup_dir: str | Path) -> Simulator:
     """The simulator a dataset was rendered with: its resolved ``setup.toml`` plus the canonical
-    size, fidelity and spp recorded in ``meta.json`` (a transport operator comes from the cache)."""
+    size, fidelity, spp and path depth recorded in ``meta.json`` (a transport operator comes from the cache)."""
     setup_dir = Path(setup_dir)
     meta = read_json(setup_dir / "meta.json", "dataset metadata")
     setup = load_setup(setup_dir / "setup.toml")
     size = canonical_size(meta)
     if size is None:
         raise DatasetError(f"{setup_dir / 'meta.json'}: no canonical width and height")
-    return Simulator(setup, size, meta.get("fidelity"), meta.get("spp"),
-                     cache_dir=setup_dir / "cache")
+    return Simulator(setup, size, meta.get("fidelity"), meta.get("spp"), cache_dir=setup_dir / "cache",
+                     max_depth=(meta.get("fidelity_choice") or {}).get("max_depth"))
 
 
 def project(sim: Simulator, frames: torch.Tensor, stream: int) -> torch.Tensor:
