@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -399,17 +400,64 @@ class Lens:
             k = 2 * gaussian_radius(self.psf_sigma) + 1
             img = cv2.GaussianBlur(img, (k, k), self.psf_sigma, borderType=cv2.BORDER_CONSTANT)
         if self.diameters is not None:
-            img = varying_defocus(img, self.diameters)
+            img = varying_defocus(img, self.diameters, self._plan)
         return img
 
+    @cached_property
+    def _plan(self) -> list:
+        """:func:`defocus_plan` of :attr:`diameters`, made on first use."""
+        return defocus_plan(self.diameters)
 
-def varying_defocus(image: np.ndarray, diameters: np.ndarray) -> np.ndarray:
-    """Scatter each pixel's light over its own defocus disk (linear, keeps all light that stays
-    inside the image).
 
-    A pixel of diameter ``d`` between two of :func:`defocus_levels` ``d_k <= d <= d_k+1`` sends
+def defocus_plan(diameters: np.ndarray) -> list[tuple[np.ndarray, tuple[int, int, int, int], np.ndarray]]:
+    """How :func:`varying_defocus` blurs with a diameter map: one step per disk of
+    :func:`defocus_levels`.
+
+    A pixel of diameter ``d`` between two levels ``d_k <= d <= d_k+1`` sends
     ``(d_k+1 - d) / (d_k+1 - d_k)`` of its light through the disk of ``d_k`` and the rest through
     the disk of ``d_k+1``.
+
+    Parameters
+    ----------
+    diameters : numpy.ndarray
+        float (H, W) disk diameter in pixels of each pixel's light (>= 0).
+
+    Returns
+    -------
+    list of (kernel, (y0, y1, x0, x1), weight)
+        Per disk: its :func:`disk_kernel`, the box of pixels it changes (those sending light
+        through it, widened by its radius) and float32 (y1 - y0, x1 - x0) the share of each
+        pixel's light in that box that goes through it.
+    """
+    d = np.asarray(diameters, np.float64)
+    h, w = d.shape
+    levels = defocus_levels(float(d.min()), float(d.max()))
+    if len(levels) == 1:
+        return [(disk_kernel(levels[0]), (0, h, 0, w), np.ones((h, w), np.float32))]
+    k = np.clip(np.searchsorted(levels, d, side="right") - 1, 0, len(levels) - 2)
+    frac = ((d - levels[k]) / (levels[k + 1] - levels[k])).astype(np.float32)
+    steps = []
+    for i, diameter in enumerate(levels):
+        use = (k == i) | (k + 1 == i)
+        kernel = disk_kernel(diameter)
+        r = (kernel.shape[0] - 1) // 2
+        cols = np.flatnonzero(use.any(axis=0))
+        # runs of columns more than a disk apart are separate boxes (a corner's two wings)
+        for run in np.split(cols, np.flatnonzero(np.diff(cols) > 2 * r + 1) + 1):
+            if len(run) == 0:
+                continue
+            rows = np.flatnonzero(use[:, run[0]:run[-1] + 1].any(axis=1))
+            y0, y1 = max(int(rows[0]) - r, 0), min(int(rows[-1]) + r + 1, h)
+            x0, x1 = max(int(run[0]) - r, 0), min(int(run[-1]) + r + 1, w)
+            kk, ff = k[y0:y1, x0:x1], frac[y0:y1, x0:x1]  # no other run within r of this one
+            weight = np.where(kk == i, 1 - ff, 0) + np.where(kk + 1 == i, ff, 0)
+            steps.append((kernel, (y0, y1, x0, x1), weight.astype(np.float32)))
+    return steps
+
+
+def varying_defocus(image: np.ndarray, diameters: np.ndarray, plan=None) -> np.ndarray:
+    """Scatter each pixel's light over its own defocus disk (linear, keeps all light that stays
+    inside the image).
 
     Parameters
     ----------
@@ -417,24 +465,20 @@ def varying_defocus(image: np.ndarray, diameters: np.ndarray) -> np.ndarray:
         float32 (H, W, 3).
     diameters : numpy.ndarray
         float (H, W) disk diameter in pixels of each pixel's light (>= 0).
+    plan : list, optional
+        :func:`defocus_plan` of ``diameters`` (computed when not given).
 
     Returns
     -------
     numpy.ndarray
         float32 (H, W, 3).
     """
-    d = np.asarray(diameters, np.float64)
-    levels = defocus_levels(float(d.min()), float(d.max()))
-    if len(levels) == 1:
-        return defocus(image, levels[0])
     out = np.zeros_like(image)
-    k = np.clip(np.searchsorted(levels, d, side="right") - 1, 0, len(levels) - 2)
-    frac = ((d - levels[k]) / (levels[k + 1] - levels[k])).astype(np.float32)
-    for i, diameter in enumerate(levels):
-        weight = np.where(k == i, 1 - frac, 0) + np.where(k + 1 == i, frac, 0)
-        if not weight.any():
-            continue
-        out += defocus(image * weight[..., None].astype(np.float32), diameter)
+    for kernel, (y0, y1, x0, x1), weight in plan if plan is not None else defocus_plan(diameters):
+        part = image[y0:y1, x0:x1] * weight[..., None]
+        if kernel.shape != (1, 1):  # symmetric kernel: filter2D's correlation is the convolution
+            part = cv2.filter2D(part, -1, kernel, borderType=cv2.BORDER_CONSTANT)
+        out[y0:y1, x0:x1] += part
     return out
 
 

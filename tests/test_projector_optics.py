@@ -297,3 +297,10 @@ def test_simulator_renders_at_the_recorded_depth():
     sim = Simulator(replace(setup, camera=replace(setup.camera, resolution=(16, 16))), (16, 16),
                     "path", 1, max_depth=5)
     assert sim.renderer.setup.render.max_depth == 5 and sim.choice.max_depth == 5
+
+
+def test_one_depth_everywhere_is_the_plain_disk_blur():
+    img = np.random.default_rng(5).random((40, 50, 3), dtype=np.float32)
+    for d in (0.0, 2.5, 3.1):
+        np.testing.assert_allclose(projector.varying_defocus(img, np.full((40, 50), d)),
+                                   projector.defocus(img, d), rtol=1e-5, atol=1e-6)
