@@ -89,6 +89,14 @@ class Renderer:
         Samples per pixel of the projector contribution; defaults to ``setup.render.spp``.
     variant : str, optional
         Mitsuba variant; defaults to the one chosen for this machine (:mod:`sim.variant`).
+
+    Attributes
+    ----------
+    lens : sim.projector.Lens
+        The projector's lens (:func:`lens_for`); the emitter's texture is its padded grid.
+    defocus_px : float
+        Defocus disk diameter (projector pixels) where the optical axis meets the surface (each
+        pixel's own disk is in ``lens.diameters``).
     """
 
     def __init__(self, setup: Setup, fidelity: str | None = None, spp: int | None = None,
