@@ -97,7 +97,9 @@ def test_suite_is_3_ambient_levels_by_8_surface_kinds():
     assert sum(s.ambient.temperature is not None for s in suite) == 8  # one level by temperature
     assert [round(float(LUMINANCE @ r), 3) for r in levels] == [0.01, 0.05, 0.12]
     pairs = {(s.ambient.radiance, s.surface.texture) for s in suite}
-    assert pairs == {(r, k) for r in levels for k in images.SURFACE_KINDS}
+    kinds = {s.surface.texture for s in suite}
+    assert len(kinds) == 8 and kinds <= set(images.SURFACE_KINDS)
+    assert pairs == {(r, k) for r in levels for k in kinds}
     assert len({s.surface.texture_seed for s in suite if s.surface.texture == "brick"}) == 3
     assert len({(s.projector.position, s.camera.position) for s in suite}) >= 4  # varied poses
 
