@@ -118,7 +118,7 @@ def scene_path(name: str) -> Path:
     Parameters
     ----------
     name : str
-        ``"default"``, ``"white"``, ``"corner"``, ``"defocus"``, ``"suite"`` (with or without
+        ``"default"``, ``"ideal"``, ``"white"``, ``"corner"``, ``"defocus"``, ``"suite"`` (with or without
         ``.toml``).
 
     Returns
