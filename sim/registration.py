@@ -127,18 +127,23 @@ def warp(image: np.ndarray, wmap: WarpMap) -> np.ndarray:
 def checkerboard(size: tuple[int, int], squares: tuple[int, int] = (9, 7)) -> tuple[np.ndarray, np.ndarray]:
     """A checkerboard frame with a white margin of one square, and its inner corners.
 
+    The square edges lie on pixel boundaries (the even split of the frame into ``squares + 2``
+    squares, rounded to whole pixels, so squares differ by at most one pixel) and the returned
+    corners are exactly where those edges cross: the true corners of the drawn pattern.
+
     Returns
     -------
     frame : numpy.ndarray
         uint8 (H, W, 3) projector frame at the canonical size.
     corners : numpy.ndarray
         float32 ((squares[0]-1) * (squares[1]-1), 2) inner-corner positions (column, row), pixel
-        centres at integer + 0.5, in OpenCV's row-major order.
+        centres at integer + 0.5 (so a corner lies at whole numbers), in OpenCV's row-major order.
     """
     w, h = size
     nx, ny = squares
-    xs = np.linspace(0, w, nx + 3)[1:-1]  # square edges, one square of margin each side
-    ys = np.linspace(0, h, ny + 3)[1:-1]
+    # square edges in pixels, one square of margin each side
+    xs = np.floor(np.linspace(0, w, nx + 3)[1:-1] + 0.5)
+    ys = np.floor(np.linspace(0, h, ny + 3)[1:-1] + 0.5)
     cols = np.searchsorted(xs, np.arange(w) + 0.5) - 1
     rows = np.searchsorted(ys, np.arange(h) + 0.5) - 1
     inside = (cols[None, :] >= 0) & (cols[None, :] < nx) & (rows[:, None] >= 0) & (rows[:, None] < ny)
