@@ -69,7 +69,7 @@ def test_homography_error_at_64px_is_a_small_fraction_of_a_pixel():
     setup = tiny_setup(camera={"position": [0.25, 0.0, 1.0], "resolution": [256, 256], "fov": 36.0},
                        projector={"resolution": [256, 256]},
                        ambient={"radiance": [0.01, 0.01, 0.01]})
-    check = Simulator(setup, SIZE).homography_check()
+    check = Simulator(setup, SIZE).registration.record(setup)["homography"]
     assert check["status"] == "ok"
     assert check["mean_px"] < 0.1 and check["max_px"] < 0.25
 
@@ -80,7 +80,7 @@ def test_exact_map_matches_homography_on_a_plane():
     setup = tiny_setup(camera={"position": [0.25, 0.0, 1.0], "resolution": [192, 192]},
                        projector={"resolution": [128, 128]},
                        ambient={"radiance": [0.01, 0.01, 0.01]})
-    check = Simulator(setup, (128, 128)).homography_check()
+    check = Simulator(setup, (128, 128)).registration.record(setup)["homography"]
     assert check["status"] == "ok"
     assert check["mean_px"] < 0.5 and check["max_px"] < 1.5
 
