@@ -7,6 +7,7 @@ capture is reproducible bit for bit and two different captures never share noise
 """
 from __future__ import annotations
 
+import itertools
 import time
 from collections import defaultdict, deque
 from collections.abc import Callable, Iterable, Iterator
@@ -15,7 +16,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from sim import camera, registration, seeds, surfaces
+from sim import camera, registration, seeds
 from sim.cores import usable_cores
 from sim.fidelity import make_renderer, resolve
 from sim.setup import Setup
@@ -78,9 +79,17 @@ class Simulator:
     ----------
     choice : sim.fidelity.Choice
         The level and spp used, and why.
+    registration : sim.registration.Registration
+        How captures are warped into the canonical view (``registration.method``; a homography is
+        estimated from checkerboards captured through this simulator, stream
+        :data:`sim.seeds.REGISTRATION`, so every simulator of a setup warps alike), with the exact
+        map beside it.
+    warp_map : sim.registration.WarpMap
+        The map captures are warped with (``registration.warp_map``).
     timings : dict[str, float]
         Seconds spent per phase (``fidelity`` — the ``auto`` measurement —, ``scene`` — including a
-        ``transport`` calibration —, ``render``, ``camera``, ``registration``) since creation.
+        ``transport`` calibration —, ``render``, ``camera``, ``registration`` — without the
+        renders and camera model of its checkerboard captures) since creation.
     """
 
     def __init__(self, setup: Setup, size: tuple[int, int], fidelity: str | None = None,
@@ -96,8 +105,13 @@ class Simulator:
         self.renderer.ambient_radiance()
         self.timings["scene"] += time.perf_counter() - t0
         t0 = time.perf_counter()
-        self.warp_map = registration.exact_map(setup, self.size)
-        self.timings["registration"] += time.perf_counter() - t0
+        captured = self.timings["render"] + self.timings["camera"]
+        index = itertools.count()
+        self.registration = registration.register(
+            setup, self.size, lambda frame: self.raw(frame, seeds.REGISTRATION, next(index)))
+        self.warp_map = self.registration.warp_map
+        self.timings["registration"] += (time.perf_counter() - t0
+                                         - (self.timings["render"] + self.timings["camera"] - captured))
 
     def linear(self, frame: np.ndarray, stream: int, index: int) -> np.ndarray:
         """Linear camera radiance (float32, camera resolution) of one projector frame."""
@@ -155,15 +169,3 @@ class Simulator:
             self.timings["registration"] += warp_s
             out.append(warped)
         return np.stack(out)
-
-    def homography_check(self) -> dict:
-        """Estimate the camera → canonical homography from projected checkerboards (planar
-        setups only) and compare it with the exact map (camera pixels)."""
-        if not surfaces.surface_for(self.setup.surface).planar:
-            return {"status": "not planar: exact map only"}
-        counter = iter(range(1_000))
-        hom = registration.estimate_homography(
-            lambda f: self.raw(f, seeds.REGISTRATION, next(counter)), self.size)
-        if hom is None:
-            return {"status": "checkerboard corners not found"}
-        return {"status": "ok", **registration.homography_error(hom, self.warp_map)}

@@ -25,7 +25,11 @@ TRAIN = 1
 TEST = 2
 """Captures of a dataset's test frames."""
 REGISTRATION = 3
-"""Captures of the checkerboards that estimate the camera → canonical homography."""
+"""Captures of the checkerboards that estimate the camera → canonical homography (indices 0, 1,
+2: checkerboard, white, black) and the corner jitter (index :data:`REGISTRATION_JITTER`)."""
+REGISTRATION_JITTER = 1000
+"""Index in stream :data:`REGISTRATION` of the generator (:func:`noise_rng`) of the random
+displacement of the detected checkerboard corners (``registration.jitter``)."""
 STREAMS = {"ref": REF, "train": TRAIN, "test": TEST, "registration": REGISTRATION}
 """Capture stream of each dataset split and of registration, as recorded in ``meta.json``."""
 CLOSED_LOOP = 16

@@ -136,6 +136,25 @@ class RenderConfig:
     """Seed base (>= 0) of the Mitsuba sampler and of the camera noise (see :mod:`sim.seeds`)."""
 
 
+REGISTRATION_METHODS = ("auto", "homography", "exact")
+"""Values of ``registration.method``."""
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """How captures are brought from the camera into the canonical projector view
+    (:mod:`sim.registration`)."""
+
+    method: str = "auto"
+    """``"homography"``: warp by the homography fitted to projected checkerboard corners found in
+    the captures, as a real pipeline does on a plane; ``"exact"``: the dense map computed from the
+    scene geometry (what a structured-light scan measures); ``"auto"``: homography on a planar
+    surface, exact map otherwise."""
+    jitter: float = 0.0
+    """Canonical pixels (>= 0): standard deviation of a random displacement added to each detected
+    checkerboard corner before the homography fit (a sloppier calibration); 0 adds none."""
+
+
 @dataclass(frozen=True)
 class Setup:
     """One validated projector-camera setup."""
@@ -152,6 +171,8 @@ class Setup:
     """The ambient light."""
     render: RenderConfig = RenderConfig()
     """Rendering settings."""
+    registration: RegistrationConfig = RegistrationConfig()
+    """Camera → canonical view registration."""
 
     @property
     def is_planar_diffuse(self) -> bool:
@@ -161,7 +182,7 @@ class Setup:
 
 SECTIONS = MappingProxyType({
     "surface": SurfaceConfig, "projector": ProjectorConfig, "camera": CameraConfig,
-    "ambient": AmbientConfig, "render": RenderConfig})
+    "ambient": AmbientConfig, "render": RenderConfig, "registration": RegistrationConfig})
 """Section name -> its dataclass, in the order of the fields of :class:`Setup` and of a written file."""
 
 

@@ -20,8 +20,9 @@ from typing import Any
 from sim import images, surfaces
 from sim.errors import DatasetError, SetupError
 from sim.io import read_png
-from sim.setup.schema import (NAME_PATTERN, SECTIONS, TEMPERATURE_RANGE, AmbientConfig, CameraConfig,
-                              ProjectorConfig, RenderConfig, Setup, SurfaceConfig, temperature_rgb)
+from sim.setup.schema import (NAME_PATTERN, REGISTRATION_METHODS, SECTIONS, TEMPERATURE_RANGE, AmbientConfig,
+                              CameraConfig, ProjectorConfig, RegistrationConfig, RenderConfig, Setup,
+                              SurfaceConfig, temperature_rgb)
 
 
 @dataclass(frozen=True)
@@ -295,6 +296,13 @@ def _render(t: _Table) -> RenderConfig:
     )
 
 
+def _registration(t: _Table) -> RegistrationConfig:
+    return RegistrationConfig(
+        method=t.choice("method", REGISTRATION_METHODS),
+        jitter=t.number("jitter", _NON_NEGATIVE, "canonical pixels"),
+    )
+
+
 def _check_interreflection(setup: Setup, source: str, prefix: str) -> None:
     """A surface whose parts light each other (a corner's wings): only path tracing of depth >= 3
     renders that."""
@@ -319,8 +327,8 @@ def parse_setup(mapping: Mapping, source: str = "<string>", base_dir: Path | str
     Parameters
     ----------
     mapping : Mapping
-        ``name`` plus the optional sections ``surface``, ``projector``, ``camera``, ``ambient``
-        and ``render``.
+        ``name`` plus the optional sections ``surface``, ``projector``, ``camera``, ``ambient``,
+        ``render`` and ``registration``.
     source : str
         Name of the file the mapping came from, for error messages.
     base_dir : Path or str, optional
@@ -359,6 +367,7 @@ def parse_setup(mapping: Mapping, source: str = "<string>", base_dir: Path | str
         tables[section] = _Table(data, cls, source, prefix + section)
     setup = Setup(name=name, surface=_surface(tables["surface"], base_dir),
                   projector=_projector(tables["projector"]), camera=_camera(tables["camera"]),
-                  ambient=_ambient(tables["ambient"]), render=_render(tables["render"]))
+                  ambient=_ambient(tables["ambient"]), render=_render(tables["render"]),
+                  registration=_registration(tables["registration"]))
     _check_interreflection(setup, source, prefix)
     return setup
