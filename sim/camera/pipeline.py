@@ -98,7 +98,8 @@ def rule_exposure(white: np.ndarray, black: np.ndarray, cfg) -> dict:
 
     The exposure is chosen so that :data:`WHITE_CLIPPED_FRACTION` of the camera pixels of the
     noiseless capture of plain white reach code 255 in their brightest white-balanced channel
-    (after the optics). One exposure cannot also set how much of plain black is under-exposed;
+    (after the optics); where pixels tie (a flat white field), the smallest exposure at which at
+    least that fraction does. One exposure cannot also set how much of plain black is under-exposed;
     that fraction (pixels at code 0 in every channel of the noiseless capture of plain black) is
     measured at the chosen exposure and returned.
 
@@ -121,17 +122,20 @@ def rule_exposure(white: np.ndarray, black: np.ndarray, cfg) -> dict:
         If plain white is black in the camera (no exposure can over-expose it).
     """
     wb = np.asarray(cfg.white_balance, np.float32)
-    thresholds = code_thresholds(cfg.response).view(np.float32)
-    first, full = float(thresholds[0]), float(thresholds[-1])  # start of codes 1 and 255
-    m = (apply_optics(np.asarray(white, np.float32), cfg) * wb).max(axis=-1).ravel()
+    full = float(code_thresholds(cfg.response)[-1].view(np.float32))  # where code 255 starts
+    white, black = (apply_optics(np.asarray(x, np.float32), cfg) for x in (white, black))
+    m = (white * wb).max(axis=-1).ravel()
     n = max(1, int(np.ceil(WHITE_CLIPPED_FRACTION * m.size)))
     level = float(np.partition(m, m.size - n)[m.size - n])  # the n-th brightest pixel
     if not level > 0:
         raise ValueError("camera exposure rule: the capture of plain white is black; "
                          "no exposure over-exposes it")
     exposure = full / level
-    b = (apply_optics(np.asarray(black, np.float32), cfg) * wb).max(axis=-1) * exposure
+
+    def noiseless(x: np.ndarray) -> np.ndarray:
+        return expose(x, exposure, wb, 0.0, 0.0, None, lambda s: codes(s, cfg.response), np.uint8)
+
     return {"mode": "rule", "exposure": exposure,
-            "white_clipped_fraction": float(np.mean(m * exposure >= full)),
+            "white_clipped_fraction": float(np.mean((noiseless(white) == 255).any(axis=-1))),
             "target_white_clipped_fraction": WHITE_CLIPPED_FRACTION,
-            "black_zero_fraction": float(np.mean(b < first))}
+            "black_zero_fraction": float(np.mean((noiseless(black) == 0).all(axis=-1)))}
