@@ -236,3 +236,20 @@ def test_camera_keys_round_trip_and_default_off():
     d = parse_setup({"name": "n"}).camera
     assert (d.psf_sigma, d.bayer, d.vignetting, d.distortion, d.jpeg_quality, d.exposure_mode) == (
         0.0, "none", 0.0, 0.0, 0, "manual")
+
+
+def test_dataset_records_the_exposure_used(tmp_path):
+    import json
+
+    from sim.dataset import FrameSpec, write_setup
+    from tests.conftest import tiny_setup
+
+    spec = FrameSpec(n_train=1, n_test=1, size=(32, 32))
+    rule = write_setup(tmp_path / "a", tiny_setup(camera={"exposure_mode": "rule", "vignetting": 0.3}),
+                       spec, progress=False)
+    meta = json.loads((rule / "meta.json").read_text())["camera_exposure"]
+    assert meta["mode"] == "rule" and meta["exposure"] > 0
+    assert meta["white_clipped_fraction"] == pytest.approx(camera.WHITE_CLIPPED_FRACTION, abs=0.005)
+    manual = write_setup(tmp_path / "b", tiny_setup(camera={"exposure": 0.7}), spec, progress=False)
+    assert json.loads((manual / "meta.json").read_text())["camera_exposure"] == {"mode": "manual",
+                                                                                 "exposure": 0.7}
