@@ -55,12 +55,20 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
     flat = s.ravel()
     counts = rng.poisson(flat.astype(np.float64) / shot_noise) if shot_noise > 0 else None
     out = np.empty(flat.shape, dtype)
+    buf64, buf32 = np.empty(min(CHUNK, flat.size)), np.empty(min(CHUNK, flat.size), np.float32)
     for i in range(0, flat.size, CHUNK):
-        x = flat[i:i + CHUNK] if counts is None else shot_noise * counts[i:i + CHUNK]
+        n = min(CHUNK, flat.size - i)
+        x = buf64[:n]
+        if counts is None:
+            x[...] = flat[i:i + n]
+        else:
+            np.multiply(counts[i:i + n], shot_noise, out=x)
         if read_noise > 0:
-            x = x + rng.normal(0.0, read_noise, x.size)
-        x = np.clip(x, 0.0, 1.0).astype(np.float32, copy=False)
-        out[i:i + x.size] = x if convert is None else convert(x)
+            x += rng.normal(0.0, read_noise, n)
+        np.clip(x, 0.0, 1.0, out=x)
+        y = buf32[:n]
+        y[...] = x
+        out[i:i + n] = y if convert is None else convert(y)
     return out.reshape(s.shape)
 
 

@@ -287,7 +287,7 @@ def _code_table(response: str) -> tuple[int, np.ndarray, np.ndarray, np.ndarray 
         crowded = after[base + 1] < starts + (1 << shift)
         if not crowded.any() or shift == 10:
             break
-    nxt = after[base].astype(np.uint32)
+    nxt = after[base]
     return shift, base.astype(np.uint8), nxt, (crowded if crowded.any() else None)
 
 
@@ -314,11 +314,12 @@ def codes(signal: np.ndarray, response: str) -> np.ndarray:
     """
     x = np.ascontiguousarray(signal, dtype=np.float32)
     shift, base, nxt, crowded = _code_table(response)
-    bits = np.clip(x.view(np.int32), 0, _ONE_BITS).view(np.uint32)
+    bits = np.empty(x.shape, np.intp)  # gathers index with intp: no conversion pass
+    np.clip(x.view(np.int32), 0, _ONE_BITS, out=bits)
     cell = bits >> shift
     out = base[cell]
     out += bits >= nxt[cell]
     if crowded is not None:  # a steep curve: cells with two thresholds or more
         many = crowded[cell]
-        out[many] = np.searchsorted(code_thresholds(response), bits[many], side="right")
+        out[many] = np.searchsorted(code_thresholds(response), bits[many].astype(np.uint32), side="right")
     return out
