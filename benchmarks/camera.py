@@ -70,7 +70,8 @@ def main() -> None:
             runs["after"].append(timed(lambda: camera.capture(rad, base, np.random.default_rng(1))))
             runs["before"].append(timed(lambda: reference_capture(rad, base, np.random.default_rng(1))))
             rng = np.random.default_rng(1)
-            runs["draws"].append(timed(lambda: (rng.poisson(lam), rng.normal(0.0, base.read_noise, lam.size))))
+            runs["draws"].append(timed(lambda: (rng.poisson(lam),
+                                                rng.normal(0.0, base.read_noise, lam.size))))
             runs["hardware"].append(timed(lambda: camera.capture(rad, hardware, np.random.default_rng(1))))
         best = {k: np.min(np.array(v), axis=0) * 1e3 for k, v in runs.items()}
         ratio = best["before"] / best["after"]
