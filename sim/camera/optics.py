@@ -102,7 +102,8 @@ def distort_image(radiance: np.ndarray, k1: float) -> np.ndarray:
     """
     h, w = radiance.shape[:2]
     mx, my = _distortion_maps(w, h, float(k1))
-    return cv2.remap(radiance, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return cv2.remap(np.ascontiguousarray(radiance), mx, my, cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
 
 
 @functools.lru_cache(maxsize=8)
@@ -154,7 +155,8 @@ def blur(radiance: np.ndarray, sigma: float) -> np.ndarray:
         float32 (H, W, C).
     """
     k = 2 * int(np.ceil(4.0 * sigma)) + 1
-    return cv2.GaussianBlur(radiance, (k, k), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
+    return cv2.GaussianBlur(np.ascontiguousarray(radiance), (k, k), sigmaX=sigma, sigmaY=sigma,
+                            borderType=cv2.BORDER_REFLECT)
 
 
 def apply_optics(radiance: np.ndarray, cfg) -> np.ndarray:
