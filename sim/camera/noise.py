@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 CHUNK = 3 * 4096
-"""Values finished at once by :func:`expose` (a multiple of 3: whole RGB pixels)."""
+"""Values finished at once by :func:`expose` (the draws do not depend on it)."""
 
 
 def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_noise: float,
