@@ -12,6 +12,7 @@ import time
 from collections import defaultdict, deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from typing import TypeVar
 
 import numpy as np
@@ -77,6 +78,11 @@ class Simulator:
 
     Attributes
     ----------
+    setup : Setup
+        The setup captured, its camera exposure set by the rule when ``exposure_mode = "rule"``.
+    exposure : dict
+        ``mode`` and ``exposure`` used (the rule adds what :func:`sim.camera.rule_exposure`
+        measured).
     choice : sim.fidelity.Choice
         The level and spp used, and why.
     registration : sim.registration.Registration
@@ -104,6 +110,7 @@ class Simulator:
         self.renderer = make_renderer(setup, self.choice.level, self.choice.spp, cache_dir)
         self.renderer.ambient_radiance()
         self.timings["scene"] += time.perf_counter() - t0
+        self.exposure = self._set_exposure()
         t0 = time.perf_counter()
         captured = self.timings["render"] + self.timings["camera"]
         index = itertools.count()
@@ -112,6 +119,20 @@ class Simulator:
         self.warp_map = self.registration.warp_map
         self.timings["registration"] += (time.perf_counter() - t0
                                          - (self.timings["render"] + self.timings["camera"] - captured))
+
+    def _set_exposure(self) -> dict:
+        """The camera's exposure, as :attr:`exposure` records it; with ``exposure_mode = "rule"``
+        set by :func:`sim.camera.rule_exposure` from renders of plain white and plain black, and
+        :attr:`setup` changed to use it for every capture."""
+        cam = self.setup.camera
+        if cam.exposure_mode != "rule":
+            return {"mode": "manual", "exposure": cam.exposure}
+        w, h = self.size
+        white, black = (self.linear(np.full((h, w, 3), level, np.uint8), seeds.EXPOSURE, i)
+                        for i, level in enumerate((255, 0)))
+        rule = camera.rule_exposure(white, black, cam)
+        self.setup = replace(self.setup, camera=replace(cam, exposure=rule["exposure"]))
+        return rule
 
     def linear(self, frame: np.ndarray, stream: int, index: int) -> np.ndarray:
         """Linear camera radiance (float32, camera resolution) of one projector frame."""

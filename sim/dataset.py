@@ -541,6 +541,7 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
         "width": int(spec.size[0]),  # canonical size, pixels
         "height": int(spec.size[1]),
         "camera_resolution": list(setup.camera.resolution),
+        "camera_exposure": sim.exposure,
         "counts": counts,
         "frames": spec.source(),
         "projector_defocus_px": r.defocus_px,

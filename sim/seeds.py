@@ -35,6 +35,9 @@ STREAMS = {"ref": REF, "train": TRAIN, "test": TEST, "registration": REGISTRATIO
 CLOSED_LOOP = 16
 """Captures of compensated frames in the closed loop; feedback refinement round ``k`` (from 0)
 uses stream ``CLOSED_LOOP + 1 + k``."""
+EXPOSURE = 95
+"""Renders of plain white (index 0) and plain black (index 1) that the camera's exposure rule
+sets the exposure from."""
 PROBE = 96
 """Renders of the probe frames that ``auto`` fidelity measures each candidate level with
 (index: the probe class's position)."""

@@ -103,6 +103,30 @@ class CameraConfig:
     """Gaussian read-noise sigma (>= 0), in linear signal units."""
     bit_depth: int = 8
     """Bits per channel of the captures; must be 8."""
+    psf_sigma: float = 0.0
+    """Camera pixels (>= 0, at most 16): standard deviation of the Gaussian optical PSF /
+    anti-alias filter applied to the linear radiance; 0 is off."""
+    bayer: str = "none"
+    """Colour filter array: ``"none"`` (three samples per pixel) or a Bayer pattern ``"RGGB"``,
+    ``"BGGR"``, ``"GRBG"``, ``"GBRG"`` (top-left 2x2 block, row by row): one channel per pixel,
+    noise drawn on the raw mosaic, white balance applied after the noise, then demosaicing."""
+    demosaic: str = "bilinear"
+    """OpenCV demosaicing of a Bayer mosaic: ``"bilinear"``, ``"vng"`` or ``"edgeaware"``
+    (used only when ``bayer`` is not ``"none"``)."""
+    vignetting: float = 0.0
+    """Fraction in [0, 1) of the light lost at the frame corners (cos^4-like falloff
+    ``(1 + c rho**2)**-2`` of the normalised radius rho, see :mod:`sim.camera.optics`); 0 is off."""
+    distortion: float = 0.0
+    """Radial lens distortion k1 (Brown model, radius normalised by the half-diagonal), in
+    [-0.14, 1]: a point at radius rho is seen at ``rho (1 + k1 rho**2)``; negative is barrel,
+    0 is off."""
+    jpeg_quality: int = 0
+    """JPEG quality 1..100 of the captures (OpenCV), or 0: no compression (lossless PNG)."""
+    exposure_mode: str = "manual"
+    """``"manual"``: ``exposure`` is used as given; ``"rule"``: set from captures of plain white
+    and plain black as the official README tells (plain white slightly over-exposed:
+    :data:`sim.camera.WHITE_CLIPPED_FRACTION` of the pixels at code 255), recorded in the
+    dataset's ``meta.json``."""
 
 
 @dataclass(frozen=True)

@@ -251,6 +251,8 @@ def _bit_depth(t: _Table) -> int:
 
 
 def _camera(t: _Table) -> CameraConfig:
+    from sim import camera
+
     return CameraConfig(
         **_view(t),
         aperture_radius=t.number("aperture_radius", _NON_NEGATIVE, "metres"),
@@ -261,6 +263,13 @@ def _camera(t: _Table) -> CameraConfig:
         shot_noise=t.number("shot_noise", _NON_NEGATIVE),
         read_noise=t.number("read_noise", _NON_NEGATIVE, "(linear signal units)"),
         bit_depth=_bit_depth(t),
+        psf_sigma=t.number("psf_sigma", _Range(0, 16), "camera pixels"),
+        bayer=t.choice("bayer", ("none", *camera.BAYER_PATTERNS)),
+        demosaic=t.choice("demosaic", camera.DEMOSAIC_METHODS),
+        vignetting=t.number("vignetting", _Range(0, 1, hi_open=True), "(fraction lost at the corners)"),
+        distortion=t.number("distortion", _Range(-0.14, 1), "(radial k1, normalised by the half-diagonal)"),
+        jpeg_quality=t.integer("jpeg_quality", _Range(0, 100), "(0: no JPEG)"),
+        exposure_mode=t.choice("exposure_mode", ("manual", "rule")),
     )
 
 
