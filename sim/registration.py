@@ -24,7 +24,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from sim import geometry, seeds, surfaces
+from sim import camera, geometry, seeds, surfaces
 from sim.errors import SetupError
 from sim.setup import Setup
 
@@ -59,7 +59,7 @@ def exact_map(setup: Setup, size: tuple[int, int]) -> WarpMap:
     Parameters
     ----------
     setup : Setup
-        The setup (projector and camera poses, surface geometry).
+        The setup (projector and camera poses, surface geometry, the camera's lens distortion).
     size : (int, int)
         Canonical (width, height) in pixels. The projector's image area keeps the aspect of its
         own resolution: when the two aspects differ, canonical pixels are not square.
@@ -76,6 +76,7 @@ def exact_map(setup: Setup, size: tuple[int, int]) -> WarpMap:
     facing = (np.sum(normals * (proj.position - points), axis=-1) > 0) & (
         np.sum(normals * (cam.position - points), axis=-1) > 0)
     xy, in_front = cam.project(points)
+    xy = camera.distort_points(xy, setup.camera)  # where the lens shows each point
     to_point = points - cam.position
     dist = np.linalg.norm(to_point, axis=-1)
     tc, _ = surface.intersect(cam.position, to_point / dist[..., None])

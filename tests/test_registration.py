@@ -132,3 +132,32 @@ def test_resampled_pinhole_keeps_the_image_area():
         frac = own.project(hit)[0] / [own.width, own.height]
         np.testing.assert_allclose(frac[0, 0], [0.5 / size[0], 0.5 / size[1]], atol=1e-9)
         np.testing.assert_allclose(frac[-1, -1], [1 - 0.5 / size[0], 1 - 0.5 / size[1]], atol=1e-9)
+
+
+def test_exact_map_follows_the_lens_distortion():
+    """With barrel distortion the camera sees each surface point elsewhere: the exact map follows
+    the distorted image, so warped captures of a texture agree with the undistorted camera's,
+    while the map without distortion misplaces them."""
+    base = dict(camera={"position": [0.25, 0.0, 1.0], "resolution": [128, 128]},
+                surface={"texture": "checker", "texture_seed": 3, "albedo_scale": 0.8},
+                ambient={"radiance": [0.01, 0.01, 0.01]}, registration={"method": "exact"})
+    straight = tiny_setup(**base)
+    bent = tiny_setup(**{**base, "camera": {**base["camera"], "distortion": -0.12}})
+    size = (48, 48)
+    plain, curved = registration.exact_map(straight, size), registration.exact_map(bent, size)
+    shift = np.linalg.norm(curved.xy - plain.xy, axis=-1)[plain.mask & curved.mask]
+    assert shift.max() > 2.0  # the lens moves the projected image by pixels at its corners
+    white = np.full((size[1], size[0], 3), 255, np.uint8)
+    views = {}
+    for name, setup in (("straight", straight), ("bent", bent)):
+        sim = Simulator(setup, size)
+        views[name] = sim.capture(white[None], stream=42)[0].astype(float)
+        views[name + "_raw"] = sim.raw(white, 42, 0)
+    wrong = registration.warp(views["bent_raw"], plain).astype(float)
+    mask = plain.mask & curved.mask
+    inner = np.zeros_like(mask)
+    inner[4:-4, 4:-4] = True
+    m = mask & inner
+    err_right = np.abs(views["bent"] - views["straight"])[m].mean()
+    err_wrong = np.abs(wrong - views["straight"])[m].mean()
+    assert err_right < 0.5 * err_wrong and err_right < 6.0
