@@ -8,7 +8,7 @@ import typing
 from pathlib import Path
 
 from sim.errors import ProcamError
-from sim.setup import load_setups
+from sim.setup import load_setups, select_setups
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -27,7 +27,10 @@ def _size(text: str) -> tuple[int, int]:
 def cmd_render(args: argparse.Namespace) -> None:
     from sim.dataset import FrameSpec, check_render, write_setup
 
-    setups = load_setups(args.setup)
+    setups = select_setups(load_setups(args.setup), args.only, args.setup)
+    if args.list:
+        print("\n".join(s.name for s in setups))
+        return
     spec = FrameSpec(args.n_train, args.n_test, args.size, args.frame_seed, args.images)
     for setup in setups:  # every setup of a suite is checked before the first is rendered
         check_render(setup, spec, args.fidelity, args.spp)
@@ -57,6 +60,10 @@ def add_render(sub) -> None:
                    help="render again a folder rendered from another setup, variant, fidelity, spp "
                         "or size (instead of refusing it); on a finished folder, check every file "
                         "and re-render the damaged ones")
+    p.add_argument("--only", metavar="NAME[,NAME…]", default=None,
+                   help="render only these setups of the suite (comma-separated names)")
+    p.add_argument("--list", action="store_true",
+                   help="print the setup names (one per line, after --only) and render nothing")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_render)
 
@@ -256,7 +263,10 @@ def cmd_bench(args: argparse.Namespace) -> None:
     cfg = BenchConfig(profile=args.profile, methods=tuple(args.methods.split(",")),
                       sizes=args.sizes, tables=tuple(args.tables.split(",")), size=args.size,
                       n_test=n_test, overrides=options, closed_loop=args.closed_loop)
-    suite = load_setups(args.suite) if args.suite else None
+    if args.only is not None and not args.suite:
+        raise ProcamError("--only selects setups of a suite: give the suite (the setups found under "
+                          "--data are all taken)")
+    suite = select_setups(load_setups(args.suite), args.only, args.suite) if args.suite else None
     white = load_setups(args.white)[0] if suite and "2" in cfg.tables else None
     files = run_bench(suite, Path(args.out), cfg, Path(args.data) if args.data else None, white,
                       progress=not args.quiet, limit=args.limit)
@@ -286,7 +296,9 @@ def add_bench(sub) -> None:
     p.add_argument("--size", type=_positive, help="canonical size override (pixels)")
     p.add_argument("--white", default="white",
                    help="white-surface setup for pre-training (Table 2; with a suite only)")
-    p.add_argument("--limit", type=_positive, help="only the first N setups")
+    p.add_argument("--only", metavar="NAME[,NAME…]", default=None,
+                   help="only these setups of the suite (comma-separated names)")
+    p.add_argument("--limit", type=_positive, help="only the first N setups (after --only)")
     p.add_argument("--closed-loop", action="store_true",
                    help="also project every compensation back through the setup and score it "
                         "(simulated setups only: those with a setup.toml)")

@@ -7,15 +7,17 @@ capture is reproducible bit for bit and two different captures never share noise
 """
 from __future__ import annotations
 
+import itertools
 import time
 from collections import defaultdict, deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from typing import TypeVar
 
 import numpy as np
 
-from sim import camera, projector, registration, seeds, surfaces
+from sim import camera, projector, registration, seeds
 from sim.cores import usable_cores
 from sim.fidelity import make_renderer, resolve, with_depth
 from sim.setup import Setup
@@ -78,11 +80,24 @@ class Simulator:
 
     Attributes
     ----------
+    setup : Setup
+        The setup captured, its camera exposure set by the rule when ``exposure_mode = "rule"``.
+    exposure : dict
+        ``mode`` and ``exposure`` used (the rule adds what :func:`sim.camera.rule_exposure`
+        measured).
     choice : sim.fidelity.Choice
         The level and spp used, and why.
+    registration : sim.registration.Registration
+        How captures are warped into the canonical view (``registration.method``; a homography is
+        estimated from checkerboards captured through this simulator, stream
+        :data:`sim.seeds.REGISTRATION`, so every simulator of a setup warps alike), with the exact
+        map beside it.
+    warp_map : sim.registration.WarpMap
+        The map captures are warped with (``registration.warp_map``).
     timings : dict[str, float]
         Seconds spent per phase (``fidelity`` — the ``auto`` measurement —, ``scene`` — including a
-        ``transport`` calibration —, ``render``, ``camera``, ``registration``) since creation.
+        ``transport`` calibration —, ``render``, ``camera``, ``registration`` — without the
+        renders and camera model of its checkerboard captures) since creation.
     """
 
     def __init__(self, setup: Setup, size: tuple[int, int], fidelity: str | None = None,
@@ -98,9 +113,29 @@ class Simulator:
                                       self.choice.spp, cache_dir)
         self.renderer.ambient_radiance()
         self.timings["scene"] += time.perf_counter() - t0
+        self.exposure = self._set_exposure()
         t0 = time.perf_counter()
-        self.warp_map = registration.exact_map(setup, self.size)
-        self.timings["registration"] += time.perf_counter() - t0
+        captured = self.timings["render"] + self.timings["camera"]
+        index = itertools.count()
+        self.registration = registration.register(
+            setup, self.size, lambda frame: self.raw(frame, seeds.REGISTRATION, next(index)))
+        self.warp_map = self.registration.warp_map
+        self.timings["registration"] += (time.perf_counter() - t0
+                                         - (self.timings["render"] + self.timings["camera"] - captured))
+
+    def _set_exposure(self) -> dict:
+        """The camera's exposure, as :attr:`exposure` records it; with ``exposure_mode = "rule"``
+        set by :func:`sim.camera.rule_exposure` from renders of plain white and plain black, and
+        :attr:`setup` changed to use it for every capture."""
+        cam = self.setup.camera
+        if cam.exposure_mode != "rule":
+            return {"mode": "manual", "exposure": cam.exposure}
+        w, h = self.size
+        white, black = (self.linear(np.full((h, w, 3), level, np.uint8), seeds.EXPOSURE, i)
+                        for i, level in enumerate((255, 0)))
+        rule = camera.rule_exposure(white, black, cam)
+        self.setup = replace(self.setup, camera=replace(cam, exposure=rule["exposure"]))
+        return rule
 
     def linear(self, frame: np.ndarray, stream: int, index: int) -> np.ndarray:
         """Linear camera radiance (float32, camera resolution) of one projector frame.
@@ -170,15 +205,3 @@ class Simulator:
             self.timings["registration"] += warp_s
             out.append(warped)
         return np.stack(out)
-
-    def homography_check(self) -> dict:
-        """Estimate the camera → canonical homography from projected checkerboards (planar
-        setups only) and compare it with the exact map (camera pixels)."""
-        if not surfaces.surface_for(self.setup.surface).planar:
-            return {"status": "not planar: exact map only"}
-        counter = iter(range(1_000))
-        hom = registration.estimate_homography(
-            lambda f: self.raw(f, seeds.REGISTRATION, next(counter)), self.size)
-        if hom is None:
-            return {"status": "checkerboard corners not found"}
-        return {"status": "ok", **registration.homography_error(hom, self.warp_map)}

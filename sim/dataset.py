@@ -1,13 +1,15 @@
 """Writing a dataset in the CompenNet code's folder layout (below) — atomically and resumably.
 
 ```
-DATA_ROOT/.lock                           held (flock) by the one render writing the root
-DATA_ROOT/frames.json                     how the shared projector frames are made: written first
-DATA_ROOT/{ref,train,test}/img_XXXX.png   projector frames shared by all setups of the root
-DATA_ROOT/<setup>/setup.toml              the fully resolved setup
-DATA_ROOT/<setup>/render.json             how its captures are rendered: written before the first
+DATA_ROOT/.lock                              held (flock) by the one render writing the root
+DATA_ROOT/frames.json                        how the shared projector frames are made: written first
+DATA_ROOT/{ref,train,test}/img_XXXX.png      projector frames shared by all setups of the root
+DATA_ROOT/<setup>/setup.toml                 the fully resolved setup
+DATA_ROOT/<setup>/render.json                how its captures are rendered: written before the first
+DATA_ROOT/<setup>/registration/exact_map.npz      ground truth: the exact map's xy and mask
+DATA_ROOT/<setup>/registration/registration.json  the map used, the homography and its error
 DATA_ROOT/<setup>/cam/{raw,warp}/{ref,train,test}/img_XXXX.png
-DATA_ROOT/<setup>/meta.json               written last: its presence marks a finished setup
+DATA_ROOT/<setup>/meta.json                  written last: its presence marks a finished setup
 ```
 Every input is checked before anything is written (:func:`check_render`, the projector frames
 read). Every PNG is written to a temporary file and renamed, so a killed run leaves no truncated
@@ -18,9 +20,11 @@ finishes the rest.
 from __future__ import annotations
 
 import fcntl
+import io
 import os
 import shutil
 import time
+import zipfile
 from collections import defaultdict
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -35,7 +39,8 @@ from sim import images, registration, seeds
 from sim.capture import Simulator, capture_workers, pipelined
 from sim.errors import DatasetError, SetupError
 from sim.fidelity import check_level, check_spp, describe, resolve
-from sim.io import intact_png, read_json, remove_temporaries, write_json, write_png, write_text
+from sim.io import (atomic_write, intact_png, read_json, remove_temporaries, write_json, write_png,
+                    write_text)
 from sim.setup import Setup, dump_setup, load_setup
 from sim.variant import choose_variant
 
@@ -43,6 +48,8 @@ N_REF = 126
 """125 plain colours (0001 black … 0125 white) and the gray surface frame 0126."""
 SURFACE_INDEX = 126
 SPLITS = ("ref", "train", "test")
+REGISTRATION_DIR = "registration"
+"""A setup folder's registration records (:func:`write_registration`)."""
 RECORD = "render.json"
 """A setup folder's record of how its captures are rendered (:func:`check_render`'s keys plus the
 resolved ``fidelity`` and ``spp``), written before the first capture."""
@@ -317,8 +324,9 @@ def _clear(out: Path) -> None:
     variant, stays). ``meta.json`` goes first and the record last, so that a run killed here
     leaves a folder that is unfinished and still refused without ``--overwrite``."""
     (out / "meta.json").unlink(missing_ok=True)
-    if (out / "cam").exists():
-        shutil.rmtree(out / "cam")
+    for folder in ("cam", REGISTRATION_DIR):
+        if (out / folder).exists():
+            shutil.rmtree(out / folder)
     (out / RECORD).unlink(missing_ok=True)
 
 
@@ -348,6 +356,34 @@ def root_lock(root: Path) -> Iterator[None]:
         yield
     finally:
         os.close(fd)
+
+
+def _holds_map(path: Path, wmap: registration.WarpMap) -> bool:
+    """True when ``path`` is an intact ``exact_map.npz`` holding ``wmap``."""
+    try:
+        with np.load(path) as saved:
+            return np.array_equal(saved["xy"], wmap.xy) and np.array_equal(saved["mask"], wmap.mask)
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+        return False
+
+
+def write_registration(folder: Path, setup: Setup, reg: registration.Registration) -> dict:
+    """Write a setup's registration records (atomically; identical files are left untouched) and
+    return the record.
+
+    ``folder/exact_map.npz`` holds the exact map, the ground truth, whatever map the captures
+    were warped with: ``xy`` float32 (H, W, 2) camera pixel coordinates (column, row; pixel
+    centres at integer + 0.5) of each canonical pixel and ``mask`` bool (H, W), the pixels the
+    camera sees. ``folder/registration.json`` holds
+    :meth:`sim.registration.Registration.record`.
+    """
+    if not _holds_map(folder / "exact_map.npz", reg.exact):
+        buffer = io.BytesIO()
+        np.savez(buffer, xy=reg.exact.xy, mask=reg.exact.mask)
+        atomic_write(folder / "exact_map.npz", buffer.getvalue())
+    record = reg.record(setup)
+    write_json(folder / "registration.json", record)
+    return record
 
 
 def _finish_capture(sim: Simulator, radiance: np.ndarray | None, raw: np.ndarray | None, stream: int,
@@ -453,6 +489,7 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
                                    "--overwrite to render it again")
             _clear(out)
     write_json(out / RECORD, record)
+    registration_record = write_registration(out / REGISTRATION_DIR, setup, sim.registration)
 
     w, h = spec.size
     raw_shape, warp_shape = (*setup.camera.resolution[::-1], 3), (h, w, 3)
@@ -486,7 +523,6 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
     for phase, sec in finish_seconds.items():
         sim.timings[phase] += sec
     rendered_seconds = time.perf_counter() - t_start
-    homography = sim.homography_check()
     r = sim.renderer
     meta = {
         "procam_version": version("procam"),
@@ -505,6 +541,7 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
         "width": int(spec.size[0]),  # canonical size, pixels
         "height": int(spec.size[1]),
         "camera_resolution": list(setup.camera.resolution),
+        "camera_exposure": sim.exposure,
         "counts": counts,
         "frames": spec.source(),
         "projector_defocus_px": r.defocus_px,
@@ -513,9 +550,8 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
         "timings_s": {**{k: round(v, 4) for k, v in sim.timings.items()}, "png": round(png_seconds, 4),
                       "total": round(rendered_seconds, 4)},
         "captures_per_second": round(len(todo) / rendered_seconds, 3) if todo else None,
-        "registration": {"method": "exact (scene geometry)",
-                         "visible_fraction": float(sim.warp_map.mask.mean()),
-                         "homography": homography},
+        "registration": {**registration_record,
+                         "ground_truth": f"{REGISTRATION_DIR}/exact_map.npz"},
     }
     write_json(out / "meta.json", meta)
     return out

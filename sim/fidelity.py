@@ -327,7 +327,8 @@ class Probe:
             signal = camera.sensor_signal(mean, cfg.exposure, cfg.white_balance)
             self.floors[k] = noise_floor(signal, cfg)
             rng = seeds.noise_rng(setup.render.seed, seeds.REFERENCE, i)
-            noisy = camera.capture(mean, cfg, rng).astype(np.float64) / 255
+            sensor = replace(cfg, psf_sigma=0.0, distortion=0.0, vignetting=0.0)  # noise, not optics
+            noisy = camera.capture(mean, sensor, rng).astype(np.float64) / 255
             clean = camera.encode(signal.astype(np.float64), cfg.response)
             self.floors_encoded[k] = float(np.sqrt(np.mean((noisy - clean) ** 2)))
         self.reference_seconds = float(np.mean(seconds[1:] or seconds))  # the first one compiles

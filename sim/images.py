@@ -24,7 +24,8 @@ PLAIN_LEVELS = (0.0, 0.25, 0.5, 0.75, 1.0)
 """Per-channel levels of the 5³ plain colours (encoded projector input, 0–1)."""
 GRAY_LEVEL = 128
 """8-bit level of the plain gray frame x0 that captures the surface image."""
-SURFACE_KINDS = ("brick", "grass", "gravel", "photo", "noise", "stripes", "checker", "blobs")
+SURFACE_KINDS = ("brick", "grass", "gravel", "photo", "noise", "stripes", "checker", "blobs",
+                 "curves", "squares", "lavender", "cloud", "cubes")
 """Names accepted by :func:`surface_texture`."""
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 """File suffixes (any case) that :func:`load_image_folder` treats as images."""
@@ -211,6 +212,77 @@ def _blobs(rng, w, h):
     return cv2.GaussianBlur(img, (0, 0), max(0.5, 0.004 * min(w, h)))
 
 
+def _curves(rng, w, h):
+    """Wavy bands: stripes along a sinusoidally bent axis, cycling 3–5 colours, soft edges."""
+    u, v = _axes(rng, w, h)
+    bend = rng.uniform(0.05, 0.2) * np.sin(2 * np.pi * v / rng.uniform(0.3, 1.0) + rng.uniform(0, 6.3))
+    t = (u + bend) / rng.uniform(0.06, 0.2)
+    colours = _colours(rng, rng.integers(3, 6))
+    img = colours[np.floor(t).astype(np.int32) % len(colours)]
+    return cv2.GaussianBlur(img, (0, 0), max(0.5, 0.003 * min(w, h)))
+
+
+def _squares(rng, w, h):
+    """A patchwork of axis-aligned squares on a grid, each a random colour, with thin gaps."""
+    x, y = _grid(w, h)
+    cell = rng.uniform(0.06, 0.2)
+    gx, gy = np.floor(x / cell).astype(np.int32), np.floor(y / cell).astype(np.int32)
+    colours = _colours(rng, (gx.max() + 1) * (gy.max() + 1))
+    img = colours[gy * (gx.max() + 1) + gx]
+    gap = rng.uniform(0.05, 0.15)
+    edge = (np.mod(x / cell, 1) < gap) | (np.mod(y / cell, 1) < gap)
+    img[edge] = _colours(rng, 1, sat=(0.0, 0.2), val=(0.8, 1.0))[0]
+    return img
+
+
+def _lavender(rng, w, h):
+    """A floral print: dense small purple florets over green and brown, at two scales."""
+    purple = np.array([[0.55, 0.45, 0.8], [0.4, 0.3, 0.65], [0.7, 0.6, 0.9]], np.float32)
+    ground = np.array([[0.35, 0.45, 0.25], [0.45, 0.4, 0.3]], np.float32)
+    t = _smooth_noise(rng, w, h, 1)[..., 0]
+    img = _ramp(t, ground)
+    fine = cv2.resize(rng.random((max(2, h // 6), max(2, w // 6))).astype(np.float32), (w, h),
+                      interpolation=cv2.INTER_CUBIC)
+    shade = _ramp(cv2.resize(rng.random((max(2, h // 3), max(2, w // 3))).astype(np.float32), (w, h)),
+                  purple)
+    img = np.where(((fine > 0.55) & (t > 0.25))[..., None], shade, img)
+    return cv2.GaussianBlur(img, (0, 0), 0.7)
+
+
+def _cloud(rng, w, h):
+    """A sky print: soft white clouds over a blue gradient (low contrast, low frequency)."""
+    sky = _ramp(_grid(w, h)[1] / max(h / min(w, h), 1e-6),
+                np.array([[0.35, 0.55, 0.85], [0.6, 0.75, 0.95]], np.float32))
+    cloud = np.clip(_smooth_noise(rng, w, h, 1) * 1.6 - 0.5, 0, 1)
+    return sky * (1 - cloud) + cloud * np.float32(0.97)
+
+
+def _cubes(rng, w, h):
+    """Isometric cubes: a tiling of hexagons split into three rhombi shaded light, mid and dark."""
+    x, y = _grid(w, h)
+    side = rng.uniform(0.05, 0.15)
+    # Axial hexagon coordinates of each pixel (pointy-top hexagons of circumradius ``side``).
+    q = (np.sqrt(3) / 3 * x - y / 3) / side
+    r = (2 / 3 * y) / side
+    cx, cz = q, r
+    cy = -cx - cz
+    rx, ry, rz = np.round(cx), np.round(cy), np.round(cz)
+    dx, dy, dz = np.abs(rx - cx), np.abs(ry - cy), np.abs(rz - cz)
+    fix_x = (dx > dy) & (dx > dz)
+    fix_y = ~fix_x & (dy > dz)
+    rx = np.where(fix_x, -ry - rz, rx)
+    ry = np.where(fix_y, -rx - rz, ry)
+    rz = np.where(~fix_x & ~fix_y, -rx - ry, rz)
+    # Which third of the hexagon: the angle of the pixel around its hexagon's centre.
+    hx = side * np.sqrt(3) * (rx + rz / 2)
+    hy = side * 1.5 * rz
+    face = (np.floor((np.arctan2(y - hy, x - hx) + np.pi / 2) / (2 * np.pi / 3)).astype(np.int32)) % 3
+    colours = _colours(rng, 4)
+    tile = (rx.astype(np.int32) * 7 + rz.astype(np.int32) * 13) % len(colours)
+    shade = np.array([1.0, 0.75, 0.5], np.float32)[face]
+    return colours[tile] * shade[..., None]
+
+
 def _photo(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
     """A random photograph's random crop of aspect w:h (30–100 % of the largest one), randomly
     flipped, resized to (w, h)."""
@@ -332,8 +404,9 @@ def surface_texture(kind: str, resolution, seed: int) -> np.ndarray:
     elif kind == "photo":
         encoded = _photo(rng, w, h)
     else:
-        encoded = {"noise": _noise, "stripes": _stripes, "checker": _checker,
-                   "blobs": _blobs}[kind](rng, w, h)
+        encoded = {"noise": _noise, "stripes": _stripes, "checker": _checker, "blobs": _blobs,
+                   "curves": _curves, "squares": _squares, "lavender": _lavender, "cloud": _cloud,
+                   "cubes": _cubes}[kind](rng, w, h)
     return np.clip(srgb_decode(encoded), 0, 1)
 
 

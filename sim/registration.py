@@ -3,12 +3,18 @@
 The canonical view is the projector's own image resampled to the dataset's size: canonical pixel
 (column, row) of a W × H view shows the projector's image at ((column + 0.5) / W, (row + 0.5) / H)
 of its width and height, whatever the projector's resolution (its scaler stretches a canonical
-frame to fill its panel, :meth:`sim.render.Renderer.emit`). Because the geometry
-is known exactly, every canonical pixel's projector ray is intersected with the surface and the hit
-point projected into the camera (:func:`exact_map`): dense, exact for non-planar surfaces too, with
-a mask of pixels the camera cannot see. For planar setups :func:`estimate_homography` also
-estimates the homography the way a real system would (projected checkerboard corners, OpenCV) so its
-error against the exact map can be reported.
+frame to fill its panel, :meth:`sim.render.Renderer.emit`).
+
+Two maps bring a capture into that view (:func:`register` picks one by ``registration.method``):
+
+- the **homography** a real pipeline estimates on a plane (:func:`estimate_homography`): a
+  checkerboard, a white and a black frame are projected and captured through the full camera
+  model, the corners found with OpenCV and a homography fitted to them (:func:`homography_map`);
+- the **exact** dense map from the scene geometry (:func:`exact_map`): every canonical pixel's
+  projector ray is intersected with the surface and the hit point projected into the camera, with
+  a mask of pixels the camera cannot see. It is exact on non-planar surfaces too, where a real
+  pipeline measures such a dense map with structured light (e.g. Gray codes); it is always kept
+  as the ground truth the homography's error is measured against.
 """
 from __future__ import annotations
 
@@ -19,7 +25,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from sim import geometry, surfaces
+from sim import camera, geometry, seeds, surfaces
 from sim.errors import SetupError
 from sim.projector import frame_area
 from sim.setup import Setup
@@ -55,7 +61,7 @@ def exact_map(setup: Setup, size: tuple[int, int]) -> WarpMap:
     Parameters
     ----------
     setup : Setup
-        The setup (projector and camera poses, surface geometry).
+        The setup (projector and camera poses, surface geometry, the camera's lens distortion).
     size : (int, int)
         Canonical (width, height) in pixels: the view of the frame's area on the panel
         (:func:`sim.projector.frame_area`; the whole panel with ``projector.keep_aspect = false``,
@@ -80,6 +86,7 @@ def exact_map(setup: Setup, size: tuple[int, int]) -> WarpMap:
     facing = (np.sum(normals * (proj.position - points), axis=-1) > 0) & (
         np.sum(normals * (cam.position - points), axis=-1) > 0)
     xy, in_front = cam.project(points)
+    xy = camera.distort_points(xy, setup.camera)  # where the lens shows each point
     to_point = points - cam.position
     dist = np.linalg.norm(to_point, axis=-1)
     tc, _ = surface.intersect(cam.position, to_point / dist[..., None])
@@ -137,18 +144,23 @@ def warp(image: np.ndarray, wmap: WarpMap) -> np.ndarray:
 def checkerboard(size: tuple[int, int], squares: tuple[int, int] = (9, 7)) -> tuple[np.ndarray, np.ndarray]:
     """A checkerboard frame with a white margin of one square, and its inner corners.
 
+    The square edges lie on pixel boundaries (the even split of the frame into ``squares + 2``
+    squares, rounded to whole pixels, so squares differ by at most one pixel) and the returned
+    corners are exactly where those edges cross: the true corners of the drawn pattern.
+
     Returns
     -------
     frame : numpy.ndarray
         uint8 (H, W, 3) projector frame at the canonical size.
     corners : numpy.ndarray
         float32 ((squares[0]-1) * (squares[1]-1), 2) inner-corner positions (column, row), pixel
-        centres at integer + 0.5, in OpenCV's row-major order.
+        centres at integer + 0.5 (so a corner lies at whole numbers), in OpenCV's row-major order.
     """
     w, h = size
     nx, ny = squares
-    xs = np.linspace(0, w, nx + 3)[1:-1]  # square edges, one square of margin each side
-    ys = np.linspace(0, h, ny + 3)[1:-1]
+    # square edges in pixels, one square of margin each side
+    xs = np.floor(np.linspace(0, w, nx + 3)[1:-1] + 0.5)
+    ys = np.floor(np.linspace(0, h, ny + 3)[1:-1] + 0.5)
     cols = np.searchsorted(xs, np.arange(w) + 0.5) - 1
     rows = np.searchsorted(ys, np.arange(h) + 0.5) - 1
     inside = (cols[None, :] >= 0) & (cols[None, :] < nx) & (rows[:, None] >= 0) & (rows[:, None] < ny)
@@ -159,7 +171,8 @@ def checkerboard(size: tuple[int, int], squares: tuple[int, int] = (9, 7)) -> tu
 
 
 def estimate_homography(capture: Callable[[np.ndarray], np.ndarray], size: tuple[int, int],
-                        squares: tuple[int, int] = (9, 7)) -> np.ndarray | None:
+                        squares: tuple[int, int] = (9, 7), jitter: float = 0.0,
+                        rng: np.random.Generator | None = None) -> np.ndarray | None:
     """Estimate the camera → canonical homography as a real system would.
 
     Three frames are projected (checkerboard, white, black); the checkerboard capture is
@@ -173,12 +186,20 @@ def estimate_homography(capture: Callable[[np.ndarray], np.ndarray], size: tuple
         Maps a uint8 projector frame (canonical size) to a uint8 camera capture.
     size : (int, int)
         Canonical (width, height).
+    squares : (int, int)
+        Squares of the checkerboard (columns, rows), without its margin.
+    jitter : float
+        Canonical pixels: standard deviation of a Gaussian displacement (per axis) added to each
+        detected corner, seen in the canonical view, before the final fit; 0 adds none.
+    rng : numpy.random.Generator, optional
+        Draws the displacements; needed when ``jitter > 0``.
 
     Returns
     -------
     numpy.ndarray or None
         3×3 homography mapping camera pixel coordinates to canonical ones (both with pixel centres
-        at integer + 0.5), or None when the corners were not found.
+        at integer + 0.5), normalised so that its last entry is 1, or None when the corners were
+        not found.
     """
     frame, corners = checkerboard(size, squares)
     w, h = size
@@ -197,7 +218,7 @@ def estimate_homography(capture: Callable[[np.ndarray], np.ndarray], size: tuple
     cam_corners = cv2.cornerSubPix(gray, cam_corners, (3, 3), (-1, -1),
                                    (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3))
     cam = cam_corners.reshape(-1, 2) + 0.5  # OpenCV puts pixel centres at integers
-    best, best_err = None, np.inf
+    best, best_order, best_err = None, cam, np.inf
     for order in (cam, cam[::-1]):
         hom, _ = cv2.findHomography(order, corners, 0)
         if hom is None:
@@ -207,8 +228,48 @@ def estimate_homography(capture: Callable[[np.ndarray], np.ndarray], size: tuple
         seen = cv2.warpPerspective(binary, shift, (w, h), flags=cv2.INTER_NEAREST)
         err = np.mean(np.abs(seen.astype(np.float32) - frame[..., 0]))
         if err < best_err:
-            best, best_err = hom, err
+            best, best_order, best_err = hom, order, err
+    if best is not None and jitter > 0:
+        # displace each detected corner by the jitter as seen in the canonical view, and refit
+        seen_at = cv2.perspectiveTransform(best_order[None].astype(np.float64), best)[0]
+        seen_at += rng.normal(0.0, jitter, seen_at.shape)
+        moved = cv2.perspectiveTransform(seen_at[None], np.linalg.inv(best))[0]
+        best, _ = cv2.findHomography(moved, corners, 0)
     return best
+
+
+def _camera_positions(hom: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """float64 (H, W, 2): where the homography ``hom`` (camera → canonical) finds each canonical
+    pixel centre in the camera image."""
+    w, h = size
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    canon = np.stack([u, v, np.ones_like(u)], axis=-1) @ np.linalg.inv(hom).T
+    return canon[..., :2] / canon[..., 2:]
+
+
+def homography_map(hom: np.ndarray, size: tuple[int, int], camera_resolution: tuple[int, int]) -> WarpMap:
+    """The warp map of a homography: each canonical pixel sampled where the homography puts it.
+
+    Parameters
+    ----------
+    hom : numpy.ndarray
+        3×3 camera → canonical homography (:func:`estimate_homography`).
+    size : (int, int)
+        Canonical (width, height) in pixels.
+    camera_resolution : (int, int)
+        Camera (width, height) in pixels.
+
+    Returns
+    -------
+    WarpMap
+        Masked where the position falls outside the camera frame (a homography knows nothing of
+        the surface's extent or of occlusion: those pixels show what the camera sees there).
+    """
+    xy = _camera_positions(hom, size)
+    cw, ch = camera_resolution
+    with np.errstate(invalid="ignore"):
+        inside = (xy[..., 0] >= 0) & (xy[..., 0] <= cw) & (xy[..., 1] >= 0) & (xy[..., 1] <= ch)
+    return WarpMap(np.where(inside[..., None], xy, 0.0).astype(np.float32), inside)
 
 
 def homography_error(hom: np.ndarray, wmap: WarpMap) -> dict:
@@ -217,8 +278,100 @@ def homography_error(hom: np.ndarray, wmap: WarpMap) -> dict:
     Returns a dict with ``mean_px``, ``max_px`` over the visible canonical pixels.
     """
     h, w = wmap.mask.shape
-    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-    canon = np.stack([u, v, np.ones_like(u)], axis=-1) @ np.linalg.inv(hom).T
-    cam = canon[..., :2] / canon[..., 2:]
-    d = np.linalg.norm(cam - wmap.xy, axis=-1)[wmap.mask]
+    d = np.linalg.norm(_camera_positions(hom, (w, h)) - wmap.xy, axis=-1)[wmap.mask]
     return {"mean_px": float(d.mean()), "max_px": float(d.max())}
+
+
+def resolve_method(setup: Setup) -> str:
+    """The map a setup's captures are warped with: ``"homography"`` or ``"exact"``
+    (``registration.method = "auto"``: homography on a planar surface, exact otherwise)."""
+    method = setup.registration.method
+    if method == "auto":
+        return "homography" if surfaces.surface_for(setup.surface).planar else "exact"
+    return method
+
+
+@dataclass(frozen=True)
+class Registration:
+    """The map a simulator warps its captures with, and the ground truth beside it.
+
+    Attributes
+    ----------
+    method : str
+        ``"homography"`` or ``"exact"``: the map in :attr:`warp_map`.
+    warp_map : WarpMap
+        The map captures are warped with.
+    exact : WarpMap
+        The exact map from the scene geometry (:func:`exact_map`), the ground truth.
+    homography : numpy.ndarray or None
+        The estimated camera → canonical homography (with the setup's jitter), None when none was
+        estimated (a non-planar surface registered exactly) or its corners were not found.
+    status : str
+        ``"ok"`` when a homography was estimated, else why not.
+    """
+
+    method: str
+    warp_map: WarpMap
+    exact: WarpMap
+    homography: np.ndarray | None
+    status: str
+
+    def record(self, setup: Setup) -> dict:
+        """What a dataset records of the registration (JSON): ``method`` (used), ``requested``
+        (the setup's), ``jitter``, ``visible_fraction`` (of the map used) and
+        ``exact_visible_fraction``, and ``homography``: ``status`` and, when estimated, its
+        ``matrix`` (camera → canonical, pixel centres at integer + 0.5) and its distance to the
+        exact map, ``mean_px`` and ``max_px`` (camera pixels over the exactly visible pixels)."""
+        hom: dict = {"status": self.status}
+        if self.homography is not None:
+            hom.update(matrix=self.homography.tolist(), **homography_error(self.homography, self.exact))
+        return {"method": self.method, "requested": setup.registration.method,
+                "jitter": setup.registration.jitter,
+                "visible_fraction": float(self.warp_map.mask.mean()),
+                "exact_visible_fraction": float(self.exact.mask.mean()),
+                "homography": hom}
+
+
+def register(setup: Setup, size: tuple[int, int], capture: Callable[[np.ndarray], np.ndarray]) -> Registration:
+    """Register a setup as ``registration.method`` asks (:func:`resolve_method`).
+
+    The exact map is always computed. A homography is estimated (:func:`estimate_homography`,
+    the corners displaced by ``registration.jitter`` drawn from
+    ``noise_rng(render.seed, REGISTRATION, REGISTRATION_JITTER)`` of :mod:`sim.seeds`) whenever the
+    surface is planar or the method asks for it, so that its error is recorded even when the
+    exact map is used. With ``auto``, a plane whose checkerboard corners are not found (a
+    canonical view too small for the pattern) falls back to the exact map, as its record says.
+
+    Parameters
+    ----------
+    setup : Setup
+        The setup.
+    size : (int, int)
+        Canonical (width, height) in pixels.
+    capture : callable
+        Maps a uint8 projector frame (canonical size) to a uint8 camera capture (the full camera
+        model, stream :data:`sim.seeds.REGISTRATION`).
+
+    Raises
+    ------
+    SetupError
+        If ``registration.method = "homography"`` and the corners were not found.
+    """
+    exact = exact_map(setup, size)
+    method = resolve_method(setup)
+    if method == "exact" and not surfaces.surface_for(setup.surface).planar:
+        return Registration("exact", exact, exact, None, "not planar: exact map only")
+    cfg = setup.registration
+    rng = seeds.noise_rng(setup.render.seed, seeds.REGISTRATION, seeds.REGISTRATION_JITTER)
+    hom = estimate_homography(capture, size, jitter=cfg.jitter, rng=rng)
+    if hom is None:
+        if cfg.method == "homography":
+            raise SetupError(
+                f'setup "{setup.name}": registration.method = "homography": the checkerboard '
+                f"corners were not found in the camera's capture at the canonical size "
+                f"{size[0]}x{size[1]}; use a larger size or registration.method = \"exact\"")
+        status = "checkerboard corners not found" + (": exact map used" if method == "homography" else "")
+        return Registration("exact", exact, exact, None, status)
+    if method == "exact":
+        return Registration("exact", exact, exact, hom, "ok")
+    return Registration("homography", homography_map(hom, size, setup.camera.resolution), exact, hom, "ok")

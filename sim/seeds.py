@@ -25,12 +25,19 @@ TRAIN = 1
 TEST = 2
 """Captures of a dataset's test frames."""
 REGISTRATION = 3
-"""Captures of the checkerboards that estimate the camera → canonical homography."""
+"""Captures of the checkerboards that estimate the camera → canonical homography (indices 0, 1,
+2: checkerboard, white, black) and the corner jitter (index :data:`REGISTRATION_JITTER`)."""
+REGISTRATION_JITTER = 1000
+"""Index in stream :data:`REGISTRATION` of the generator (:func:`noise_rng`) of the random
+displacement of the detected checkerboard corners (``registration.jitter``)."""
 STREAMS = {"ref": REF, "train": TRAIN, "test": TEST, "registration": REGISTRATION}
 """Capture stream of each dataset split and of registration, as recorded in ``meta.json``."""
 CLOSED_LOOP = 16
 """Captures of compensated frames in the closed loop; feedback refinement round ``k`` (from 0)
 uses stream ``CLOSED_LOOP + 1 + k``."""
+EXPOSURE = 95
+"""Renders of plain white (index 0) and plain black (index 1) that the camera's exposure rule
+sets the exposure from."""
 PROBE = 96
 """Renders of the probe frames that ``auto`` fidelity measures each candidate level with
 (index: the probe class's position)."""
@@ -41,10 +48,10 @@ CALIBRATION = 98
 """The spaced-dot renders that calibrate a light-transport operator (index 0: one seed for all)."""
 AMBIENT = 99
 """The ambient-only image of a setup (index 0)."""
-TEST_TIME = (TEST,) + tuple(range(CLOSED_LOOP, PROBE))
+TEST_TIME = (TEST,) + tuple(range(CLOSED_LOOP, EXPOSURE))
 """Streams captured at test time (test frames, closed loop and its refinement rounds): the lamp's
 ``projector.drift`` applies to them, not to the calibration captures (reference, training,
-registration)."""
+registration, the exposure rule)."""
 
 # ------------------------------------------------------------------------- image generator
 

@@ -42,13 +42,13 @@ def _tree(folder: Path) -> set[Path]:
 # -- class 4: stale work and unknown names are refused before any work --------------------------
 
 def test_unknown_method_in_bench_is_refused_before_any_work(tmp_path, capsys):
-    _fails(capsys, ["bench", "default", "--out", str(tmp_path / "b"), "--methods", "tps,bogus"],
+    _fails(capsys, ["bench", "ideal", "--out", str(tmp_path / "b"), "--methods", "tps,bogus"],
            "unknown method 'bogus'", "tps")
     assert not (tmp_path / "b").exists()
 
 
 def test_bench_option_no_method_uses_is_refused(tmp_path, capsys):
-    _fails(capsys, ["bench", "default", "--out", str(tmp_path / "b"), "--methods", "tps",
+    _fails(capsys, ["bench", "ideal", "--out", str(tmp_path / "b"), "--methods", "tps",
                     "--tables", "1", "--l1-weight", "5"], "'l1_weight'", "tps")
     assert not (tmp_path / "b").exists()
 
@@ -190,7 +190,7 @@ def test_file_system_errors_are_reported_without_traceback(tmp_path, capsys):
     """bench-sim into a folder under a file: the OSError is named, exit 2."""
     blocker = tmp_path / "file"
     blocker.write_text("")
-    _fails(capsys, ["bench-sim", "default", "--out", str(blocker / "out"), "--spp", "1", "--repeats", "1",
+    _fails(capsys, ["bench-sim", "ideal", "--out", str(blocker / "out"), "--spp", "1", "--repeats", "1",
                     "--ref-spp", "4", "--window", "8", "--classes", "smooth", "--quiet"], str(blocker))
 
 
@@ -200,6 +200,6 @@ def test_too_few_pairs_for_a_spline_is_a_clear_error(setup_dir, tmp_path, capsys
 
 
 def test_bench_option_values_are_checked_before_any_work(tmp_path, capsys):
-    _fails(capsys, ["bench", "default", "--out", str(tmp_path / "b"), "--methods", "compennet",
+    _fails(capsys, ["bench", "ideal", "--out", str(tmp_path / "b"), "--methods", "compennet",
                     "--tables", "1", "--lr", "-1"], "option lr = -1.0")
     assert not (tmp_path / "b").exists()

@@ -153,7 +153,7 @@ def test_every_setup_of_a_suite_is_checked_before_the_first_is_rendered(tmp_path
 def test_shipped_setups_see_the_whole_projection():
     from sim.setup import load_setups
 
-    assert registration.check_visible(load_setups("default")[0], (32, 32)) == 1.0
+    assert registration.check_visible(load_setups("ideal")[0], (32, 32)) == 1.0
 
 
 # ------------------------------------------------------------- inputs checked before anything is written
@@ -397,10 +397,10 @@ def test_overwrite_repairs_a_damaged_capture_of_a_finished_setup(tmp_path, capsy
     """A capture damaged after the setup finished is rewritten by --overwrite to its original bytes."""
     from compensation.cli import main as procam
 
-    args = ["render", "default", "--out", str(tmp_path / "data"), "--size", "32", "--n-train", "2",
+    args = ["render", "ideal", "--out", str(tmp_path / "data"), "--size", "32", "--n-train", "2",
             "--n-test", "1", "--quiet"]
     assert procam(args) == 0
-    victim = tmp_path / "data" / "default" / "cam" / "warp" / "train" / "img_0001.png"
+    victim = tmp_path / "data" / "ideal" / "cam" / "warp" / "train" / "img_0001.png"
     good = victim.read_bytes()
     victim.write_bytes(good[:40])
     assert procam(args) == 0 and victim.read_bytes() == good[:40]  # finished: not re-checked

@@ -215,6 +215,7 @@ def test_flicker_and_drift_statistics():
     assert test.std() == pytest.approx(0.9 * 0.05, rel=0.06)
     assert abs(np.corrcoef(train[:-1], train[1:])[0, 1]) < 0.06  # independent captures
     assert not np.array_equal(train, test)
+    assert projector.lamp_gain(replace(cfg, flicker=0.0), 0, seeds.EXPOSURE, 0) == 1.0  # calibration
     # steady lamp: exactly 1
     still = tiny_setup().projector
     assert {projector.lamp_gain(still, 0, s, 3) for s in (seeds.TRAIN, seeds.TEST)} == {1.0}

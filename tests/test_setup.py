@@ -18,7 +18,7 @@ from sim.setup import (AmbientConfig, CameraConfig, ProjectorConfig, RenderConfi
                        scene_path, temperature_rgb)
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
-SHIPPED = ("default", "white", "corner", "defocus")
+SHIPPED = ("default", "ideal", "white", "corner", "defocus")
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])  # linear sRGB -> Y
 
 
@@ -47,8 +47,8 @@ def test_scene_path_unknown_name_lists_shipped():
     assert msg.startswith("marble: ") and all(n in msg for n in (*SHIPPED, "suite"))
 
 
-def test_default_scene_key_numbers():
-    s = load_setup(scene_path("default"))
+def test_ideal_scene_key_numbers():
+    s = load_setup(scene_path("ideal"))
     assert s.is_planar_diffuse and s.render.fidelity == "auto" and s.render.spp == 16
     assert s.surface.texture in images.SURFACE_KINDS and s.surface.albedo_scale == 0.8
     assert s.projector.resolution == (256, 256) and s.camera.resolution == (256, 256)
@@ -56,17 +56,17 @@ def test_default_scene_key_numbers():
     assert 0.02 <= s.ambient.radiance[0] <= 0.05 and s.camera.response == "sRGB"
 
 
-def test_variants_differ_from_default_only_where_intended():
-    default = load_setup(scene_path("default"))
+def test_variants_differ_from_ideal_only_where_intended():
+    ideal = load_setup(scene_path("ideal"))
     white = load_setup(scene_path("white"))
     defocus = load_setup(scene_path("defocus"))
     assert white == dataclasses.replace(
-        default, name="white",
-        surface=dataclasses.replace(default.surface, texture="uniform", texture_seed=0, albedo_scale=0.9))
+        ideal, name="white",
+        surface=dataclasses.replace(ideal.surface, texture="uniform", texture_seed=0, albedo_scale=0.9))
     assert defocus == dataclasses.replace(
-        default, name="defocus",
-        projector=dataclasses.replace(default.projector, aperture=0.02, focus_distance=0.8),
-        camera=dataclasses.replace(default.camera, aperture_radius=0.005, focus_distance=0.9))
+        ideal, name="defocus",
+        projector=dataclasses.replace(ideal.projector, aperture=0.02, focus_distance=0.8),
+        camera=dataclasses.replace(ideal.camera, aperture_radius=0.005, focus_distance=0.9))
 
 
 def test_defocus_blurs_a_few_pixels():
@@ -97,7 +97,9 @@ def test_suite_is_3_ambient_levels_by_8_surface_kinds():
     assert sum(s.ambient.temperature is not None for s in suite) == 8  # one level by temperature
     assert [round(float(LUMINANCE @ r), 3) for r in levels] == [0.01, 0.05, 0.12]
     pairs = {(s.ambient.radiance, s.surface.texture) for s in suite}
-    assert pairs == {(r, k) for r in levels for k in images.SURFACE_KINDS}
+    kinds = {s.surface.texture for s in suite}
+    assert len(kinds) == 8 and kinds <= set(images.SURFACE_KINDS)
+    assert pairs == {(r, k) for r in levels for k in kinds}
     assert len({s.surface.texture_seed for s in suite if s.surface.texture == "brick"}) == 3
     assert len({(s.projector.position, s.camera.position) for s in suite}) >= 4  # varied poses
 
@@ -448,12 +450,12 @@ def test_brightest_capture_stays_below_clipping(setup):
         assert peak < 0.75  # room for the light the wings reflect onto each other
     else:
         assert peak < 0.95
-    if setup.name == "default":
+    if setup.name == "ideal":
         assert 0.8 <= peak <= 0.9
 
 
-def test_default_projected_area_fills_most_of_the_frame():
-    setup = load_setup(scene_path("default"))
+def test_ideal_projected_area_fills_most_of_the_frame():
+    setup = load_setup(scene_path("ideal"))
     p = setup.projector
     t = math.tan(math.radians(p.fov) / 2)
     corners = np.array([[-t, -t, 1], [t, -t, 1], [t, t, 1], [-t, t, 1]]) @ _frame(p.position, p.look_at, p.up).T

@@ -31,7 +31,7 @@ def _shipped(name: str):
 @pytest.fixture(scope="module")
 def default_op():
     """The planar default setup's operator, calibrated at 256 spp."""
-    setup = _shipped("default")
+    setup = _shipped("ideal")
     return setup, TransportRenderer(setup, 256)
 
 

@@ -1,7 +1,7 @@
 """Setup files: the validated description of one simulated projector-camera setup.
 
 A setup file (TOML, ``scenes/*.toml``) has a ``name`` and the sections ``surface``, ``projector``,
-``camera``, ``ambient`` and ``render``; every key but ``name`` is optional. The package holds
+``camera``, ``ambient``, ``render`` and ``registration``; every key but ``name`` is optional. The package holds
 
 - :mod:`~sim.setup.schema`: the frozen dataclasses (:class:`Setup` and its sections), field by
   field with units and defaults;
@@ -9,16 +9,17 @@ A setup file (TOML, ``scenes/*.toml``) has a ``name`` and the sections ``surface
   with errors naming the file, the dotted key and what was expected;
 - :mod:`~sim.setup.toml`: :func:`load_setup` (a file) and :func:`dump_setup` (the fully
   resolved TOML, which reads back to an equal :class:`Setup`);
-- :mod:`~sim.setup.suites`: :func:`load_suite`, the shipped scenes (:func:`scene_path`) and
-  :func:`load_setups`, what a command line names.
+- :mod:`~sim.setup.suites`: :func:`load_suite`, the shipped scenes (:func:`scene_path`),
+  :func:`load_setups`, what a command line names, and :func:`select_setups` (``--only``).
 """
 from sim.errors import SetupError
 from sim.setup.schema import (NAME_PATTERN, TEMPERATURE_RANGE, AmbientConfig, CameraConfig,
-                              ProjectorConfig, RenderConfig, Setup, SurfaceConfig, temperature_rgb)
-from sim.setup.suites import load_setups, load_suite, scene_path
+                              ProjectorConfig, RegistrationConfig, RenderConfig, Setup, SurfaceConfig,
+                              temperature_rgb)
+from sim.setup.suites import load_setups, load_suite, scene_path, select_setups
 from sim.setup.toml import dump_setup, load_setup
 from sim.setup.validation import parse_setup
 
 __all__ = ["NAME_PATTERN", "TEMPERATURE_RANGE", "AmbientConfig", "CameraConfig",
-           "ProjectorConfig", "RenderConfig", "Setup", "SetupError", "SurfaceConfig", "dump_setup",
-           "load_setup", "load_setups", "load_suite", "parse_setup", "scene_path", "temperature_rgb"]
+           "ProjectorConfig", "RegistrationConfig", "RenderConfig", "Setup", "SetupError", "SurfaceConfig", "dump_setup",
+           "load_setup", "load_setups", "load_suite", "parse_setup", "scene_path", "select_setups", "temperature_rgb"]

@@ -118,6 +118,30 @@ class CameraConfig:
     """Gaussian read-noise sigma (>= 0), in linear signal units."""
     bit_depth: int = 8
     """Bits per channel of the captures; must be 8."""
+    psf_sigma: float = 0.0
+    """Camera pixels (>= 0, at most 16): standard deviation of the Gaussian optical PSF /
+    anti-alias filter applied to the linear radiance; 0 is off."""
+    bayer: str = "none"
+    """Colour filter array: ``"none"`` (three samples per pixel) or a Bayer pattern ``"RGGB"``,
+    ``"BGGR"``, ``"GRBG"``, ``"GBRG"`` (top-left 2x2 block, row by row): one channel per pixel,
+    noise drawn on the raw mosaic, white balance applied after the noise, then demosaicing."""
+    demosaic: str = "bilinear"
+    """OpenCV demosaicing of a Bayer mosaic: ``"bilinear"``, ``"vng"`` or ``"edgeaware"``
+    (used only when ``bayer`` is not ``"none"``)."""
+    vignetting: float = 0.0
+    """Fraction in [0, 1) of the light lost at the frame corners (cos^4-like falloff
+    ``(1 + c rho**2)**-2`` of the normalised radius rho, see :mod:`sim.camera.optics`); 0 is off."""
+    distortion: float = 0.0
+    """Radial lens distortion k1 (Brown model, radius normalised by the half-diagonal), in
+    [-0.14, 1]: a point at radius rho is seen at ``rho (1 + k1 rho**2)``; negative is barrel,
+    0 is off."""
+    jpeg_quality: int = 0
+    """JPEG quality 1..100 of the captures (OpenCV), or 0: no compression (lossless PNG)."""
+    exposure_mode: str = "manual"
+    """``"manual"``: ``exposure`` is used as given; ``"rule"``: set from captures of plain white
+    and plain black as the official README tells (plain white slightly over-exposed:
+    :data:`sim.camera.WHITE_CLIPPED_FRACTION` of the pixels at code 255), recorded in the
+    dataset's ``meta.json``."""
 
 
 @dataclass(frozen=True)
@@ -151,6 +175,25 @@ class RenderConfig:
     """Seed base (>= 0) of the Mitsuba sampler and of the camera noise (see :mod:`sim.seeds`)."""
 
 
+REGISTRATION_METHODS = ("auto", "homography", "exact")
+"""Values of ``registration.method``."""
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """How captures are brought from the camera into the canonical projector view
+    (:mod:`sim.registration`)."""
+
+    method: str = "auto"
+    """``"homography"``: warp by the homography fitted to projected checkerboard corners found in
+    the captures, as a real pipeline does on a plane; ``"exact"``: the dense map computed from the
+    scene geometry (what a structured-light scan measures); ``"auto"``: homography on a planar
+    surface, exact map otherwise."""
+    jitter: float = 0.0
+    """Canonical pixels (>= 0): standard deviation of a random displacement added to each detected
+    checkerboard corner before the homography fit (a sloppier calibration); 0 adds none."""
+
+
 @dataclass(frozen=True)
 class Setup:
     """One validated projector-camera setup."""
@@ -167,6 +210,8 @@ class Setup:
     """The ambient light."""
     render: RenderConfig = RenderConfig()
     """Rendering settings."""
+    registration: RegistrationConfig = RegistrationConfig()
+    """Camera → canonical view registration."""
 
     @property
     def is_planar_diffuse(self) -> bool:
@@ -176,7 +221,7 @@ class Setup:
 
 SECTIONS = MappingProxyType({
     "surface": SurfaceConfig, "projector": ProjectorConfig, "camera": CameraConfig,
-    "ambient": AmbientConfig, "render": RenderConfig})
+    "ambient": AmbientConfig, "render": RenderConfig, "registration": RegistrationConfig})
 """Section name -> its dataclass, in the order of the fields of :class:`Setup` and of a written file."""
 
 

@@ -100,6 +100,34 @@ def _suite(suite: Mapping, path: Path) -> list[Setup]:
     return setups
 
 
+def select_setups(setups: list[Setup], only: str | None, source: str) -> list[Setup]:
+    """The setups named in ``only`` (``NAME[,NAME…]``), in the suite's order; all for None.
+
+    Parameters
+    ----------
+    setups : list of Setup
+        A suite's setups (:func:`load_setups`).
+    only : str or None
+        Comma-separated setup names (the ``--only`` option of ``procam render`` and ``bench``).
+    source : str
+        What the setups came from, for messages (the suite file or scene name).
+
+    Raises
+    ------
+    SetupError
+        If a name is empty or not a setup of the suite; the message lists the valid names.
+    """
+    if only is None:
+        return setups
+    names = [n.strip() for n in only.split(",")]
+    valid = [s.name for s in setups]
+    unknown = [n for n in names if n not in valid]
+    if unknown:
+        raise SetupError(f"--only {only}: no setup named {', '.join(repr(n) for n in unknown)} in "
+                         f"{source}; its setups: {', '.join(valid)}")
+    return [s for s in setups if s.name in names]
+
+
 def _shipped_dir():
     """The folder of the shipped setup files (package ``procam_scenes``)."""
     try:
@@ -118,7 +146,7 @@ def scene_path(name: str) -> Path:
     Parameters
     ----------
     name : str
-        ``"default"``, ``"white"``, ``"corner"``, ``"defocus"``, ``"suite"`` (with or without
+        ``"default"``, ``"ideal"``, ``"white"``, ``"corner"``, ``"defocus"``, ``"suite"`` (with or without
         ``.toml``).
 
     Returns

@@ -20,8 +20,9 @@ from typing import Any
 from sim import images, surfaces
 from sim.errors import DatasetError, SetupError
 from sim.io import read_png
-from sim.setup.schema import (NAME_PATTERN, SECTIONS, TEMPERATURE_RANGE, AmbientConfig, CameraConfig,
-                              ProjectorConfig, RenderConfig, Setup, SurfaceConfig, temperature_rgb)
+from sim.setup.schema import (NAME_PATTERN, REGISTRATION_METHODS, SECTIONS, TEMPERATURE_RANGE, AmbientConfig,
+                              CameraConfig, ProjectorConfig, RegistrationConfig, RenderConfig, Setup,
+                              SurfaceConfig, temperature_rgb)
 
 
 @dataclass(frozen=True)
@@ -260,6 +261,8 @@ def _bit_depth(t: _Table) -> int:
 
 
 def _camera(t: _Table) -> CameraConfig:
+    from sim import camera
+
     return CameraConfig(
         **_view(t),
         aperture_radius=t.number("aperture_radius", _NON_NEGATIVE, "metres"),
@@ -270,6 +273,13 @@ def _camera(t: _Table) -> CameraConfig:
         shot_noise=t.number("shot_noise", _NON_NEGATIVE),
         read_noise=t.number("read_noise", _NON_NEGATIVE, "(linear signal units)"),
         bit_depth=_bit_depth(t),
+        psf_sigma=t.number("psf_sigma", _Range(0, 16), "camera pixels"),
+        bayer=t.choice("bayer", ("none", *camera.BAYER_PATTERNS)),
+        demosaic=t.choice("demosaic", camera.DEMOSAIC_METHODS),
+        vignetting=t.number("vignetting", _Range(0, 1, hi_open=True), "(fraction lost at the corners)"),
+        distortion=t.number("distortion", _Range(-0.14, 1), "(radial k1, normalised by the half-diagonal)"),
+        jpeg_quality=t.integer("jpeg_quality", _Range(0, 100), "(0: no JPEG)"),
+        exposure_mode=t.choice("exposure_mode", ("manual", "rule")),
     )
 
 
@@ -305,6 +315,13 @@ def _render(t: _Table) -> RenderConfig:
     )
 
 
+def _registration(t: _Table) -> RegistrationConfig:
+    return RegistrationConfig(
+        method=t.choice("method", REGISTRATION_METHODS),
+        jitter=t.number("jitter", _NON_NEGATIVE, "canonical pixels"),
+    )
+
+
 def _check_interreflection(setup: Setup, source: str, prefix: str) -> None:
     """A surface whose parts light each other (a corner's wings): only path tracing of depth >= 3
     renders that."""
@@ -329,8 +346,8 @@ def parse_setup(mapping: Mapping, source: str = "<string>", base_dir: Path | str
     Parameters
     ----------
     mapping : Mapping
-        ``name`` plus the optional sections ``surface``, ``projector``, ``camera``, ``ambient``
-        and ``render``.
+        ``name`` plus the optional sections ``surface``, ``projector``, ``camera``, ``ambient``,
+        ``render`` and ``registration``.
     source : str
         Name of the file the mapping came from, for error messages.
     base_dir : Path or str, optional
@@ -369,6 +386,7 @@ def parse_setup(mapping: Mapping, source: str = "<string>", base_dir: Path | str
         tables[section] = _Table(data, cls, source, prefix + section)
     setup = Setup(name=name, surface=_surface(tables["surface"], base_dir),
                   projector=_projector(tables["projector"]), camera=_camera(tables["camera"]),
-                  ambient=_ambient(tables["ambient"]), render=_render(tables["render"]))
+                  ambient=_ambient(tables["ambient"]), render=_render(tables["render"]),
+                  registration=_registration(tables["registration"]))
     _check_interreflection(setup, source, prefix)
     return setup

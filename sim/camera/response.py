@@ -1,5 +1,8 @@
-"""The camera outside Mitsuba: exposure, white balance, Poisson-Gaussian sensor noise, clipping at
-full well, a response curve and 8-bit quantisation, applied to the rendered linear radiance.
+"""Camera response curves, 8-bit quantisation, and the fast encoder of linear signals to codes.
+
+:func:`encode` then :func:`quantise` is the straightforward definition of a capture's 8-bit code;
+:func:`codes` gives the same codes from the linear signal by table look-up (see
+:func:`code_thresholds`).
 
 Response curves map the linear sensor signal in [0, 1] (1 = full well) to the encoded value in
 [0, 1], strictly increasing with an inverse. Two families are offered:
@@ -169,60 +172,6 @@ def decode(encoded, response: str) -> np.ndarray:
     return _apply(encoded, response, 1)
 
 
-def sensor_signal(radiance: np.ndarray, exposure: float, white_balance, shot_noise: float = 0.0,
-                  read_noise: float = 0.0, rng: np.random.Generator | None = None) -> np.ndarray:
-    """Linear sensor signal with Poisson-Gaussian noise, clipped at full well.
-
-    ``s = radiance * exposure * white_balance``; with ``shot_noise = a > 0`` the signal is
-    ``a * Poisson(s / a)`` (``s / a`` electrons), then Gaussian read noise of standard deviation
-    ``read_noise`` is added and the result clipped to [0, 1]. Before clipping the variance is
-    ``a * s + read_noise**2`` (see :func:`noise_sigma`). Without noise (the defaults) this is
-    the noiseless signal, ``s`` clipped to [0, 1].
-
-    Parameters
-    ----------
-    radiance : numpy.ndarray
-        Linear camera radiance, (..., 3), >= 0 (negative values count as 0).
-    exposure : float
-        Multiplier from radiance to signal (1 = full well at radiance 1), > 0.
-    white_balance : array_like
-        Three per-channel gains, > 0.
-    shot_noise : float
-        Poisson gain a in signal units (>= 0; 0 = no shot noise).
-    read_noise : float
-        Gaussian read-noise standard deviation in signal units (>= 0).
-    rng : numpy.random.Generator, optional
-        Source of the noise (seeded by the caller); needed unless both noise terms are 0.
-
-    Returns
-    -------
-    numpy.ndarray
-        float32 signal in [0, 1], the shape of ``radiance``.
-
-    Examples
-    --------
-    >>> sensor_signal(np.array([[0.25, 0.5, 2.0]]), 2.0, (1.0, 1.0, 1.0)).tolist()
-    [[0.5, 1.0, 1.0]]
-    """
-    rad = np.asarray(radiance, dtype=np.float32)
-    if rad.ndim < 1 or rad.shape[-1] != 3:
-        raise ValueError(f"radiance: expected shape (..., 3), got {rad.shape}")
-    wb = np.asarray(white_balance, dtype=np.float32)
-    if wb.shape != (3,):
-        raise ValueError(f"white_balance: expected 3 gains, got {white_balance!r}")
-    if exposure <= 0 or shot_noise < 0 or read_noise < 0:
-        raise ValueError(f"camera: expected exposure > 0 and noise levels >= 0, got exposure="
-                         f"{exposure}, shot_noise={shot_noise}, read_noise={read_noise}")
-    if rng is None and (shot_noise > 0 or read_noise > 0):
-        raise ValueError("camera: a random generator is needed for shot or read noise")
-    s = np.maximum(rad * np.float32(exposure) * wb, 0.0)
-    if shot_noise > 0:
-        s = shot_noise * rng.poisson(s.astype(np.float64) / shot_noise)
-    if read_noise > 0:
-        s = s + rng.normal(0.0, read_noise, s.shape)
-    return np.clip(s, 0.0, 1.0).astype(np.float32)
-
-
 def quantise(encoded, bit_depth: int = 8) -> np.ndarray:
     """Round encoded values in [0, 1] to 8-bit codes: ``rint(255 * x)`` after clipping.
 
@@ -246,53 +195,6 @@ def quantise(encoded, bit_depth: int = 8) -> np.ndarray:
     if bit_depth != 8:
         raise ValueError(f"camera bit_depth = {bit_depth!r}: only 8 is supported")
     return np.rint(np.clip(np.asarray(encoded, np.float64), 0.0, 1.0) * _LEVELS).astype(np.uint8)
-
-
-def capture(radiance: np.ndarray, cfg, rng: np.random.Generator) -> np.ndarray:
-    """The whole camera: sensor signal, response curve, quantisation.
-
-    Parameters
-    ----------
-    radiance : numpy.ndarray
-        Linear camera radiance (H, W, 3).
-    cfg : CameraConfig-like
-        Any object with ``exposure``, ``white_balance``, ``shot_noise``, ``read_noise``,
-        ``response`` and ``bit_depth`` attributes.
-    rng : numpy.random.Generator
-        Source of the sensor noise (seeded by the caller).
-
-    Returns
-    -------
-    numpy.ndarray
-        uint8 (H, W, 3) image.
-    """
-    signal = sensor_signal(radiance, cfg.exposure, cfg.white_balance, cfg.shot_noise,
-                           cfg.read_noise, rng)
-    return quantise(encode(signal, cfg.response), cfg.bit_depth)
-
-
-def noise_sigma(signal, shot_noise: float, read_noise: float) -> np.ndarray:
-    """Standard deviation of the sensor noise at a linear signal level (before clipping).
-
-    Parameters
-    ----------
-    signal : array_like
-        Linear sensor signal (negative values count as 0).
-    shot_noise, read_noise : float
-        As in :func:`sensor_signal`.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``sqrt(shot_noise * signal + read_noise**2)`` in signal units (float64).
-
-    Examples
-    --------
-    >>> float(noise_sigma(0.3, 1e-3, 1e-2)) ** 2
-    0.0004
-    """
-    s = np.maximum(np.asarray(signal, np.float64), 0.0)
-    return np.sqrt(shot_noise * s + read_noise ** 2)
 
 
 def quantisation_sigma(signal, response: str) -> np.ndarray:
@@ -324,3 +226,100 @@ def quantisation_sigma(signal, response: str) -> np.ndarray:
     lo = np.clip(y - 0.5 / _LEVELS, 0.0, 1.0 - 1.0 / _LEVELS)
     width = decode(lo + 1.0 / _LEVELS, response) - decode(lo, response)
     return width / math.sqrt(12.0)
+
+
+_ONE_BITS = 0x3F800000  # the bit pattern of float32 1.0; non-negative float32 bit patterns are ordered
+
+
+def _reference_codes(bits: np.ndarray, response: str) -> np.ndarray:
+    """8-bit codes of float32 signals given by their bit patterns: ``quantise(encode(x))``."""
+    return quantise(encode(bits.astype(np.uint32).view(np.float32), response))
+
+
+@functools.lru_cache(maxsize=64)
+def code_thresholds(response: str) -> np.ndarray:
+    """The float32 signal at which each 8-bit code starts: ``t[k - 1]`` is the smallest float32
+    ``x`` in [0, 1] with ``quantise(encode(x)) >= k``, k = 1..255.
+
+    Found by bisection over the float32 bit patterns of [0, 1] (ordered like the numbers), with
+    :func:`encode` and :func:`quantise` themselves, so the codes of :func:`codes` are theirs bit
+    for bit wherever the encoded code does not decrease with the signal.
+
+    Parameters
+    ----------
+    response : str
+        A response name (see :func:`check_response`).
+
+    Returns
+    -------
+    numpy.ndarray
+        uint32 bit patterns of the 255 thresholds (view them as float32 for the values).
+
+    Examples
+    --------
+    >>> t = code_thresholds("linear").view(np.float32)  # just above the half codes: rint rounds to even
+    >>> round(float(t[0]) * 255, 6), round(float(t[-1]) * 255, 4)
+    (0.5, 254.5)
+    """
+    check_response(response)
+    k = np.arange(1, _LEVELS + 1)
+    lo = np.zeros(_LEVELS, np.int64)  # code(lo) < k
+    hi = np.full(_LEVELS, _ONE_BITS, np.int64)  # code(hi) >= k
+    while np.any(hi - lo > 1):
+        mid = (lo + hi) // 2
+        up = _reference_codes(mid, response) >= k
+        hi = np.where(up, mid, hi)
+        lo = np.where(up, lo, mid)
+    return hi.astype(np.uint32)
+
+
+@functools.lru_cache(maxsize=64)
+def _code_table(response: str) -> tuple[int, np.ndarray, np.ndarray, np.ndarray | None]:
+    """(shift, base, next, crowded-or-None): cell ``c = bits >> shift`` of the float32 bit
+    patterns starts at code ``base[c]``; the code is one more from ``next[c]`` on. The largest
+    shift (fewest cells) with at most one threshold per cell is used; where even 2**20 cells leave
+    cells with two thresholds, ``crowded`` marks them (their signals are searched)."""
+    t = code_thresholds(response).astype(np.int64)
+    for shift in range(16, 9, -1):
+        starts = np.arange((_ONE_BITS >> shift) + 1, dtype=np.int64) << shift
+        base = np.searchsorted(t, starts, side="right")
+        after = np.append(t, [2**32 - 1, 2**32 - 1])
+        crowded = after[base + 1] < starts + (1 << shift)
+        if not crowded.any() or shift == 10:
+            break
+    nxt = after[base]
+    return shift, base.astype(np.uint8), nxt, (crowded if crowded.any() else None)
+
+
+def codes(signal: np.ndarray, response: str) -> np.ndarray:
+    """8-bit codes of a linear float32 signal: ``quantise(encode(signal, response))`` bit for bit,
+    by a table on the float32 bit patterns and one comparison with the next threshold.
+
+    Parameters
+    ----------
+    signal : numpy.ndarray
+        float32 linear signal; values outside [0, 1] (and -0.0) are clipped.
+    response : str
+        A response name (see :func:`check_response`).
+
+    Returns
+    -------
+    numpy.ndarray
+        uint8 codes, the shape of ``signal``.
+
+    Examples
+    --------
+    >>> codes(np.array([0.25, 2.0, -1.0], np.float32), "gamma:2").tolist()
+    [128, 255, 0]
+    """
+    x = np.ascontiguousarray(signal, dtype=np.float32)
+    shift, base, nxt, crowded = _code_table(response)
+    bits = np.empty(x.shape, np.intp)  # gathers index with intp: no conversion pass
+    np.clip(x.view(np.int32), 0, _ONE_BITS, out=bits)
+    cell = bits >> shift
+    out = base[cell]
+    out += bits >= nxt[cell]
+    if crowded is not None:  # a steep curve: cells with two thresholds or more
+        many = crowded[cell]
+        out[many] = np.searchsorted(code_thresholds(response), bits[many].astype(np.uint32), side="right")
+    return out

@@ -1,0 +1,87 @@
+"""`procam render SUITE --list` and `--only NAME[,NAME…]` of `procam render` and `procam bench`."""
+from __future__ import annotations
+
+import pytest
+
+import compensation.evaluation.bench
+from compensation.cli import main
+from sim.setup import load_setups
+
+SUITE = """
+base = "base.toml"
+[[setup]]
+name = "alpha"
+[[setup]]
+name = "beta"
+surface = {texture = "noise"}
+[[setup]]
+name = "gamma"
+"""
+BASE = """
+name = "base"
+[surface]
+texture = "uniform"
+[projector]
+resolution = [16, 16]
+[camera]
+resolution = [32, 32]
+[render]
+fidelity = "direct"
+spp = 1
+ambient_spp = 1
+"""
+
+
+@pytest.fixture
+def suite(tmp_path):
+    (tmp_path / "base.toml").write_text(BASE)
+    path = tmp_path / "suite.toml"
+    path.write_text(SUITE)
+    return path
+
+
+def test_list_prints_the_names_and_renders_nothing(suite, tmp_path, capsys):
+    assert main(["render", str(suite), "--list", "--out", str(tmp_path / "data")]) == 0
+    assert capsys.readouterr().out.splitlines() == ["alpha", "beta", "gamma"]
+    assert not (tmp_path / "data").exists()
+    assert main(["render", str(suite), "--list", "--only", "gamma,alpha"]) == 0
+    assert capsys.readouterr().out.splitlines() == ["alpha", "gamma"]  # in the suite's order
+    assert main(["render", "suite", "--list"]) == 0  # a shipped suite by name
+    assert capsys.readouterr().out.splitlines() == [s.name for s in load_setups("suite")]
+
+
+def test_only_renders_the_named_setups(suite, tmp_path, capsys):
+    data = tmp_path / "data"
+    assert main(["render", str(suite), "--only", "beta", "--out", str(data), "--size", "16",
+                 "--n-train", "1", "--n-test", "1", "--quiet"]) == 0
+    assert capsys.readouterr().out.strip() == f"procam: beta -> {data / 'beta'}"
+    assert (data / "beta" / "meta.json").is_file()
+    assert not (data / "alpha").exists() and not (data / "gamma").exists()
+
+
+def test_only_selects_the_bench_setups(suite, tmp_path, monkeypatch):
+    seen = {}
+
+    def fake_run_bench(setups, out, cfg, data_root, white, progress, limit):
+        seen["names"], seen["limit"] = [s.name for s in setups], limit
+        return {}
+
+    monkeypatch.setattr(compensation.evaluation.bench, "run_bench", fake_run_bench)
+    assert main(["bench", str(suite), "--only", "gamma,beta", "--out", str(tmp_path / "b"),
+                 "--tables", "1", "--quiet"]) == 0
+    assert seen == {"names": ["beta", "gamma"], "limit": None}
+
+
+@pytest.mark.parametrize("command", [["render", "--list"], ["render"], ["bench", "--out", "unused"]])
+def test_unknown_names_are_refused_with_the_valid_ones(suite, tmp_path, capsys, command):
+    argv = [command[0], str(suite), *command[1:], "--only", "alpha,delta,", "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--only alpha,delta,: no setup named 'delta', '' in" in err and str(suite) in err
+    assert "its setups: alpha, beta, gamma" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_bench_only_needs_a_suite(tmp_path, capsys):
+    assert main(["bench", "--data", str(tmp_path), "--out", str(tmp_path / "b"), "--only", "x"]) == 2
+    assert "--only selects setups of a suite" in capsys.readouterr().err
