@@ -1,9 +1,10 @@
 """Camera → canonical projector view.
 
-The canonical view is the projector's own image resampled to the dataset's size: canonical pixel
-(column, row) of a W × H view shows the projector's image at ((column + 0.5) / W, (row + 0.5) / H)
-of its width and height, whatever the projector's resolution (its scaler stretches a canonical
-frame to fill its panel, :meth:`sim.render.Renderer.emit`).
+The canonical view is the projector's input frame at the dataset's size: canonical pixel
+(column, row) of a W × H view shows the frame's area on the panel (:func:`sim.projector.frame_area`:
+the scaler covers the panel keeping the frame's aspect, or stretches it with ``keep_aspect =
+false``) at ((column + 0.5) / W, (row + 0.5) / H) of its width and height, whatever the
+projector's native resolution (:meth:`sim.render.Renderer.emit`).
 
 Two maps bring a capture into that view (:func:`register` picks one by ``registration.method``):
 
