@@ -9,16 +9,18 @@ A setup file (TOML, ``scenes/*.toml``) has a ``name`` and the sections ``surface
   with errors naming the file, the dotted key and what was expected;
 - :mod:`~sim.setup.toml`: :func:`load_setup` (a file) and :func:`dump_setup` (the fully
   resolved TOML, which reads back to an equal :class:`Setup`);
-- :mod:`~sim.setup.suites`: :func:`load_suite`, the shipped scenes (:func:`scene_path`) and
-  :func:`load_setups`, what a command line names.
+- :mod:`~sim.setup.suites`: :func:`load_suite`, the shipped scenes (:func:`scene_path`),
+  :func:`load_setups`, what a command line names, and :func:`merge_setup`, partial overrides
+  deep-merged onto a setup mapping.
 """
 from sim.errors import SetupError
 from sim.setup.schema import (NAME_PATTERN, TEMPERATURE_RANGE, AmbientConfig, CameraConfig,
                               ProjectorConfig, RenderConfig, Setup, SurfaceConfig, temperature_rgb)
-from sim.setup.suites import load_setups, load_suite, scene_path
+from sim.setup.suites import load_setups, load_suite, merge_setup, scene_path
 from sim.setup.toml import dump_setup, load_setup
 from sim.setup.validation import parse_setup
 
 __all__ = ["NAME_PATTERN", "TEMPERATURE_RANGE", "AmbientConfig", "CameraConfig",
            "ProjectorConfig", "RenderConfig", "Setup", "SetupError", "SurfaceConfig", "dump_setup",
-           "load_setup", "load_setups", "load_suite", "parse_setup", "scene_path", "temperature_rgb"]
+           "load_setup", "load_setups", "load_suite", "merge_setup", "parse_setup", "scene_path",
+           "temperature_rgb"]
