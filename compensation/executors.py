@@ -44,15 +44,12 @@ class Task:
     num_gpus: float = 0.0
 
 
-class JobInterrupted(ProcamError):
-    """The user or a scheduler stopped a job; the whole run stops (finished jobs are kept)."""
-
-
 def attempt(fn: Callable, job) -> dict:
     """``{"ok": True, **fn(job)}``, or ``{"ok": False, "error": …, "traceback": …}`` if it raises.
 
-    An interruption (:class:`KeyboardInterrupt`, or the training loop's own) is not a job's
-    failure: it propagates as :class:`JobInterrupted`.
+    An interruption (:class:`KeyboardInterrupt`, or the training loop's own
+    :class:`~compensation.training.loop.TrainingInterrupted`) is not a job's failure: it stops the
+    whole run (what is finished is kept).
 
     >>> attempt(int, "3x")["error"]
     "ValueError: invalid literal for int() with base 10: '3x'"
@@ -61,8 +58,8 @@ def attempt(fn: Callable, job) -> dict:
 
     try:
         return {"ok": True, **fn(job)}
-    except (KeyboardInterrupt, TrainingInterrupted) as exc:
-        raise JobInterrupted(f"interrupted: {exc}") from None
+    except TrainingInterrupted:
+        raise
     except Exception as exc:  # one failure must not lose the others' results
         return {"ok": False, "error": f"{type(exc).__name__}: {exc}",
                 "traceback": traceback.format_exc(limit=4)}
@@ -136,10 +133,14 @@ class RayExecutor:
         remote = self.ray.remote(attempt)
         refs = [remote.options(num_cpus=t.num_cpus, num_gpus=t.num_gpus).remote(t.fn, t.job)
                 for t in tasks]
+        return [self._result(ref) for ref in refs]
+
+    def _result(self, ref) -> dict:
+        """A task's record; a task lost by Ray (its worker or node died) is a failed job."""
         try:
-            return self.ray.get(refs)
-        except self.ray.exceptions.RayTaskError as exc:
-            raise JobInterrupted(f"a Ray task stopped: {exc}") from None
+            return self.ray.get(ref)
+        except self.ray.exceptions.RayError as exc:
+            return {"ok": False, "error": f"{type(exc).__name__}: {exc}".strip(), "traceback": ""}
 
     def gpus(self) -> float:
         """GPUs of the cluster."""

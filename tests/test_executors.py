@@ -79,6 +79,9 @@ def test_ray_bench_equals_local(tmp_path):
         executor = RayExecutor()  # joins the instance started here
         run_bench(suite, tmp_path / "ray", cfg, progress=False, executor=executor)
         assert ray.cluster_resources()["CPU"] == 2
+        stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / "ray").rglob("metrics.json")}
+        run_bench(suite, tmp_path / "ray", cfg, progress=False, executor=executor)  # a new driver's run
+        assert {p: p.stat().st_mtime_ns for p in (tmp_path / "ray").rglob("metrics.json")} == stamps
     finally:
         ray.shutdown()
     for name in ("table1.csv", "per_setup.csv", "results.csv"):

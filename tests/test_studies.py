@@ -14,7 +14,7 @@ import imageio.v3 as iio
 import pytest
 
 from compensation.cli import main
-from compensation.evaluation.jobs import RESULT_COLUMNS, STATUSES
+from compensation.evaluation.jobs import RESULT_COLUMNS, STATUSES, run_status
 from compensation.evaluation.studies import expand, load_study, run_study, with_overrides
 from compensation.methods import METHODS
 from sim.errors import ProcamError
@@ -215,3 +215,17 @@ def test_resume_fits_nothing_and_a_failure_is_a_row(tiny, monkeypatch, capsys):
     assert "RuntimeError: simulated crash" in failed["error"] and failed["psnr"] == ""
     assert failed["unc_psnr"] and failed["oracle_psnr"]  # the setup's baselines are still there
     assert failed["run"] == f"runs/{failing.parent.name}/nayar-n8-seed0"
+
+
+def test_run_status(tmp_path):
+    ok = {"psnr": 20.0, "rmse": 0.1, "ssim": 0.7, "deltaE": 5.0, "final_loss": 0.1,
+          "closed_loop": {"psnr": 18.0, "rmse": 0.12, "ssim": 0.6, "deltaE": 6.0}}
+    assert run_status(ok, tmp_path) == ("ok", "")
+    assert run_status({**ok, "ssim": float("nan")}, tmp_path) == ("nan", "not finite: ssim")
+    assert run_status({**ok, "closed_loop": {**ok["closed_loop"], "psnr": float("nan")}},
+                      tmp_path) == ("nan", "not finite: cl_psnr")
+    assert run_status({**ok, "final_loss": float("inf")}, tmp_path)[0] == "diverged"
+    (tmp_path / "loss.csv").write_text("iteration,loss,lr\n1,0.2,0.001\n2,0.25,0.001\n")
+    assert run_status(ok, tmp_path) == ("ok", "")  # a loss up by a quarter: noise, not divergence
+    (tmp_path / "loss.csv").write_text("iteration,loss,lr\n1,0.2,0.001\n2,0.9,0.001\n")
+    assert run_status(ok, tmp_path) == ("diverged", "training loss grew above 1.5x its first value")

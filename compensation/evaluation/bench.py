@@ -213,8 +213,9 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
     data_root = Path(data_root or out / "data")
     spec = FrameSpec(max(max(cfg.sizes), TABLE2["n_train"]), cfg.tests, (cfg.canonical,) * 2)
     table2_white = "2" in cfg.tables and white is not None
-    renders = [RenderJob(data_root, s, spec, progress) for s in [*(suite or []), *([white] if table2_white else [])]]
-    gpus = executor.gpus() if renders or setups else 0.0
+    renders = [RenderJob(data_root, s, spec, progress)
+               for s in [*(suite or []), *([white] if table2_white else [])]]
+    gpus = executor.gpus()
     for job, done in zip(renders, executor.run(tasks(render, renders, gpus))):
         if not done["ok"]:  # the bench's setups are all needed: a refused render stops it
             raise ProcamError(f"render {job.setup.name}: {done['error']}")
@@ -256,7 +257,7 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
                      "official_tag": record["official_tag"], **record["metrics"]})
     write_results(out, (), results, extra=("table", "variant"))
     write_study_record(out, {
-        "name": out.name, "question": "The CompenNet paper's Tables 1-3 on simulated setups",
+        "name": out.name, "question": f"The CompenNet paper's Tables {', '.join(cfg.tables)} on these setups",
         "kind": "bench", "base": None, "axes": [], "methods": list(cfg.methods), "seeds": [seed],
         "n_train": list(cfg.sizes), "n_test": cfg.tests, "size": [cfg.canonical] * 2 if suite else None,
         "overrides": cfg.overrides, "tables": list(cfg.tables), "profile": cfg.profile,
