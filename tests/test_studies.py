@@ -229,3 +229,32 @@ def test_run_status(tmp_path):
     assert run_status(ok, tmp_path) == ("ok", "")  # a loss up by a quarter: noise, not divergence
     (tmp_path / "loss.csv").write_text("iteration,loss,lr\n1,0.2,0.001\n2,0.9,0.001\n")
     assert run_status(ok, tmp_path) == ("diverged", "training loss grew above 1.5x its first value")
+
+
+def test_a_setup_that_cannot_render_fails_its_rows_only(tiny, monkeypatch, capsys):
+    import compensation.evaluation.jobs as jobs
+
+    real = jobs.write_setup
+
+    def refuse(root, setup, *args, **kwargs):
+        if setup.name.endswith("0p1"):
+            raise ProcamError("simulated refusal")
+        return real(root, setup, *args, **kwargs)
+
+    monkeypatch.setattr(jobs, "write_setup", refuse)
+    assert main(["study", str(tiny / "tiny.toml"), "--out", str(tiny / "out"), "--quiet"]) == 0
+    rows = _rows(tiny / "out" / "results.csv")
+    assert [r["status"] for r in rows] == ["ok", "ok", "failed", "failed"]
+    assert all(r["error"] == "render of base__ambient-radiance-0p1 failed: ProcamError: simulated refusal"
+               for r in rows[2:])
+    assert "2 runs (0 trained, 2 reused), 2 failed rows, 1 setups" in capsys.readouterr().out
+
+
+def test_render_seeds_give_each_seed_its_dataset(tmp_path):
+    (tmp_path / "base.toml").write_text(BASE.replace("[render]", "[render]\nseed = 5"))
+    (tmp_path / "s.toml").write_text(STUDY.replace("seeds = [0]", "seeds = [0, 2]\nrender_seeds = true"))
+    plan = expand(load_study(tmp_path / "s.toml"))
+    assert {name: s.render.seed for name, s in plan.setups.items()} == {
+        f"base__ambient-radiance-{v}__seed{k}": 5 + k for v in ("0p02", "0p1") for k in (0, 2)}
+    assert all(r.setup.endswith(f"__seed{r.seed}") and r.cfg.seed == r.seed for r in plan.runs)
+    assert len(plan.runs) == 2 * 2 * 2  # points x methods x seeds
