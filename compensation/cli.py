@@ -356,7 +356,8 @@ def add_study(sub) -> None:
     smoke.add_argument("--seeds", type=_positive, help="run the seeds 0 .. N-1")
     smoke.add_argument("--methods", help="comma-separated methods, e.g. tps,compennet")
     smoke.add_argument("--only", help="comma-separated point numbers or setup-name patterns "
-                                      "(e.g. 0,2 or '*aperture-0p01*')")
+                                      "(e.g. 0,2 or '*aperture-0p01*'); results.csv then holds "
+                                      "their rows only")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     _executor_options(p)
     p.set_defaults(func=cmd_study)
