@@ -251,7 +251,7 @@ def _executor_options(p: argparse.ArgumentParser) -> None:
 
     g = p.add_argument_group("where the jobs run")
     g.add_argument("--executor", choices=EXECUTORS, default="local",
-                   help="local: in this process (or --workers processes); ray: one Ray task per job "
+                   help="local: in this process (or --processes N); ray: one Ray task per job "
                         "(render, fit, score), on this machine or the cluster at --address")
     g.add_argument("--address", default=None,
                    help="Ray cluster to join: 'auto' (the one `ray start --head` runs here) or "
