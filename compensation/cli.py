@@ -253,6 +253,26 @@ def add_compensate(sub) -> None:
     p.set_defaults(func=cmd_compensate)
 
 
+def _executor_options(p: argparse.ArgumentParser) -> None:
+    from compensation.executors import EXECUTORS
+
+    g = p.add_argument_group("where the jobs run")
+    g.add_argument("--executor", choices=EXECUTORS, default="local",
+                   help="local: in this process (or --processes N); ray: one Ray task per job "
+                        "(render, fit, score), on this machine or the cluster at --address")
+    g.add_argument("--address", default=None,
+                   help="Ray cluster to join: 'auto' (the one `ray start --head` runs here) or "
+                        "ray://HOST:10001; default: a Ray instance started for this command")
+    g.add_argument("--processes", type=_positive, default=1,
+                   help="local executor: worker processes running jobs side by side (default 1)")
+
+
+def _executor(args: argparse.Namespace):
+    from compensation.executors import make_executor
+
+    return make_executor(args.executor, args.address, args.processes)
+
+
 def cmd_bench(args: argparse.Namespace) -> None:
     from compensation.evaluation.bench import BenchConfig, run_bench
 
@@ -268,8 +288,10 @@ def cmd_bench(args: argparse.Namespace) -> None:
                           "--data are all taken)")
     suite = select_setups(load_setups(args.suite), args.only, args.suite) if args.suite else None
     white = load_setups(args.white)[0] if suite and "2" in cfg.tables else None
+    executor = _executor(args)
     files = run_bench(suite, Path(args.out), cfg, Path(args.data) if args.data else None, white,
-                      progress=not args.quiet, limit=args.limit)
+                      progress=not args.quiet and executor.name == "local", limit=args.limit,
+                      executor=executor)
     for name, path in files.items():
         print(f"procam: {name} -> {path}")
     for name in ("table1", "table2", "table3"):
@@ -303,7 +325,54 @@ def add_bench(sub) -> None:
                    help="also project every compensation back through the setup and score it "
                         "(simulated setups only: those with a setup.toml)")
     _training_options(p)
+    _executor_options(p)
     p.set_defaults(func=cmd_bench)
+
+
+def _methods(text: str) -> tuple[str, ...]:
+    return tuple(m.strip() for m in text.split(",") if m.strip())
+
+
+def cmd_study(args: argparse.Namespace) -> None:
+    from compensation.evaluation.studies import load_study, run_study, study_file, with_overrides
+
+    study = with_overrides(load_study(study_file(args.study)), size=args.size, n_train=args.n_train,
+                           n_test=args.n_test, iters=args.iters, seeds=args.seeds,
+                           methods=_methods(args.methods) if args.methods else None,
+                           only=_methods(args.only) if args.only else None)
+    executor = _executor(args)
+    done = run_study(study, Path(args.out), executor, progress=not args.quiet and executor.name == "local")
+    print(f"procam: study {study.name}: {done['jobs']} runs ({done['trained']} trained, "
+          f"{done['reused']} reused), {done['failed']} failed rows, {done['setups']} setups")
+    print(f"procam: study -> {done['study']}")
+    print(f"procam: results -> {done['results']}")
+
+
+def add_study(sub) -> None:
+    p = sub.add_parser("study", help="how each method's scores change with a factor of the setup",
+                       description="Run a declarative study (a TOML file: a base setup or suite, "
+                                   "one or two axes over setup keys or training options, methods, "
+                                   "seeds): render each point's setup, fit each method per seed, "
+                                   "score it on held-out pairs and in closed loop, and write "
+                                   "OUT/study.json and OUT/results.csv. Resumable: a finished job "
+                                   "with the same configuration is reused.")
+    p.add_argument("study", help="study file, or the name of a shipped study (scenes/studies/)")
+    p.add_argument("--out", required=True, help="study folder")
+    smoke = p.add_argument_group("overrides (smoke runs)")
+    smoke.add_argument("--size", type=_size, help="canonical size N or WxH (pixels)")
+    smoke.add_argument("--n-train", type=_int_list, help="training pairs, e.g. 16 or 8,32 (replaces an "
+                                                         "n_train axis's values)")
+    smoke.add_argument("--n-test", type=_positive, help="test pairs")
+    smoke.add_argument("--iters", type=_positive, help="iterations of the network methods (replaces an "
+                                                       "iters axis's values)")
+    smoke.add_argument("--seeds", type=_positive, help="run the seeds 0 .. N-1")
+    smoke.add_argument("--methods", help="comma-separated methods, e.g. tps,compennet")
+    smoke.add_argument("--only", help="comma-separated point numbers or setup-name patterns "
+                                      "(e.g. 0,2 or '*aperture-0p01*'); results.csv then holds "
+                                      "their rows only")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    _executor_options(p)
+    p.set_defaults(func=cmd_study)
 
 
 def cmd_demo(args: argparse.Namespace) -> None:
@@ -326,7 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="procam", description="Physically simulated projector–camera "
                                      "testbed for projector photometric compensation.")
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (add_render, add_bench_sim, add_train, add_compensate, add_bench, add_demo):
+    for add in (add_render, add_bench_sim, add_train, add_compensate, add_bench, add_study, add_demo):
         add(sub)
     return parser
 

@@ -15,29 +15,27 @@ Each run also leaves the official code's outputs, in the official layout under
     cam/cmp/<tag>/img_XXXX.png    π†(x̃) for the test captures x̃ (what the surrogate metrics score)
     prj/cmp/<tag>/img_XXXX.png    π†(y) for the test images y: the frames to project
 
-with the tag of :func:`official_tag` (e.g. ``CompenNet_l1+ssim_500_64_1000``).
+with the tag of :func:`~compensation.evaluation.official.official_tag` (e.g.
+``CompenNet_l1+ssim_500_64_1000``).
+
+The bench is a study without axes: its renders, runs and baselines are the jobs of
+:mod:`compensation.evaluation.jobs`, run by an executor of :mod:`compensation.executors`, and its
+folder holds the same ``study.json`` (kind ``bench``) and ``results.csv`` as a study's.
 """
 from __future__ import annotations
 
 import os
-import time
-import traceback
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from compensation.data import SetupData, load_setup_data
-from compensation.evaluation.metrics import evaluate
+from compensation.evaluation.jobs import (BaselineJob, FitJob, RenderJob, baselines, fit, render,
+                                          result_row, simulated, tasks, write_results, write_study_record)
 from compensation.evaluation.tables import LOSSES, TABLE2, write_tables
+from compensation.executors import LocalExecutor
 from compensation.methods import get_method
-from compensation.training.config import COMMON, PROFILES, TrainConfig, applicable, make_config
-from compensation.training.loop import TrainingInterrupted
-from compensation.training.runs import load_run, package_version, scores_are_current, train_run
-from sim.dataset import FrameSpec, image_name, write_setup
+from compensation.training.config import COMMON, PROFILES, applicable, make_config
+from sim.dataset import FrameSpec
 from sim.errors import ProcamError
-from sim.io import read_json, to_uint8, write_json, write_png
-
-N_MASK_FIGURE = 4
-"""Test images per setup in ``reachable/<setup>.png``."""
 
 
 @dataclass(frozen=True)
@@ -135,26 +133,6 @@ def _train_config(cfg: BenchConfig, method: str, n_train: int, **job_values):
     return make_config(cfg.profile, method, **{**values, "n_train": n_train, "n_test": cfg.tests})
 
 
-def _reusable(run_dir: Path, train_cfg, setup_dir: Path) -> dict | None:
-    """The metrics of a finished run made with exactly ``train_cfg`` (device aside) on the dataset
-    ``setup_dir`` by this procam version and scored with today's metrics
-    (:func:`~compensation.training.runs.scores_are_current`), else None."""
-    if not (run_dir / "metrics.json").exists():
-        return None
-    try:
-        config = read_json(run_dir / "config.json", "run configuration")
-        done = config["train"]
-    except (ProcamError, KeyError, TypeError):
-        return None
-    wanted = train_cfg.to_dict()
-    if (config.get("dataset") != str(Path(setup_dir).resolve())
-            or config.get("procam_version") != package_version()
-            or not all(done.get(k) == v for k, v in wanted.items() if k != "device")):
-        return None
-    metrics = read_json(run_dir / "metrics.json", "run metrics")
-    return metrics if scores_are_current(metrics) else None
-
-
 def found_setups(root: Path) -> list[str]:
     """Every setup below ``root``: the folders holding ``cam/warp``, as paths relative to ``root``
     (``default``, ``light2/pos1/curves``), sorted.
@@ -178,53 +156,15 @@ def found_setups(root: Path) -> list[str]:
     return sorted(found)
 
 
-def official_tag(cfg: TrainConfig, pretrained: bool = False) -> str:
-    """The official code's name of a run's output folder: ``<model>_<loss>_<ntrain>_<batch>_<iters>``.
-
-    ``<model>`` is the method's ``official_name`` (``_pretrained`` appended for a pre-trained
-    initialisation); a method without a ``loss``, ``batch`` or ``iters`` option leaves that field
-    out (TPS: ``TPS_125``; pix2pix: ``pix2pix_125_1_10000``).
-
-    Examples
-    --------
-    >>> official_tag(make_config("paper", "compennet"))
-    'CompenNet_l1+ssim_500_64_1000'
-    >>> official_tag(make_config("quick", "tps-textured", n_train=125))
-    'TPS_textured_125'
-    """
-    options = cfg.options
-    model = get_method(cfg.method).official_name + ("_pretrained" if pretrained else "")
-    fields = [model] + ([options.loss] if hasattr(options, "loss") else []) + [str(cfg.n_train)]
-    return "_".join(fields + [str(getattr(options, k)) for k in ("batch", "iters") if hasattr(options, k)])
-
-
-def write_official_outputs(run_dir: Path, data: SetupData, dest: Path, tag: str) -> None:
-    """Write a run's π†(x̃) of the test captures to ``dest/cam/cmp/<tag>`` and its π†(y) of the
-    test images y (the test frames) to ``dest/prj/cmp/<tag>``, as ``img_XXXX.png`` (8 bit)."""
-    method, config = load_run(run_dir)
-    batch = config["train"].get("eval_batch", 64)
-    for kind, inputs in (("cam", data.test.captures), ("prj", data.test.frames)):
-        frames = method.predict(inputs, data.surface, batch_size=batch).permute(0, 2, 3, 1).numpy()
-        for i, frame in enumerate(frames, start=1):
-            write_png(dest / kind / "cmp" / tag / image_name(i), to_uint8(frame))
-
-
-def _official_complete(dest: Path, tag: str, n: int) -> bool:
-    return all(len(list((dest / kind / "cmp" / tag).glob("img_*.png"))) == n for kind in ("cam", "prj"))
-
-
-def _simulated(setup_dir: Path) -> bool:
-    """Whether procam rendered the setup (its ``setup.toml`` makes a closed loop possible)."""
-    return (setup_dir / "setup.toml").exists()
-
-
 def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path | None = None,
-              white=None, progress: bool = True, limit: int | None = None) -> dict[str, Path]:
+              white=None, progress: bool = True, limit: int | None = None,
+              executor=None) -> dict[str, Path]:
     """Run the benchmark and write its tables.
 
     Resumable: a run whose ``metrics.json`` exists and whose configuration equals the job's is
-    reused; any other run folder is trained again. A failing run is recorded in
-    ``failures.json`` and does not lose the others.
+    reused (:func:`~compensation.evaluation.jobs.reusable`); any other run folder is trained
+    again. A failing run is recorded in ``failures.json`` and in ``results.csv`` (status
+    ``failed``) and does not lose the others.
 
     Parameters
     ----------
@@ -233,7 +173,8 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         missing; None: every setup found under ``data_root`` (:func:`found_setups`), as it is.
     out : Path
         Output folder: ``runs/``, ``official/``, ``table{1,2,3}.{md,csv}``, ``per_setup.csv``,
-        ``failures.json``.
+        ``failures.json``, ``results.csv`` (point 0, with the ``table`` and ``variant`` (run
+        name) of each row) and ``study.json``.
     cfg : BenchConfig
         What to run.
     data_root : Path, optional
@@ -243,6 +184,8 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         The white-surface setup used for pre-training (Table 2).
     limit : int, optional
         Only the first ``limit`` setups.
+    executor : LocalExecutor or RayExecutor, optional
+        Where the jobs run (default: in this process, one after the other).
 
     Returns
     -------
@@ -253,9 +196,11 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
     ------
     ProcamError
         Without a suite: if ``data_root`` is not given or holds no setup, or ``cfg.size`` is set
-        (found setups keep their own size).
+        (found setups keep their own size); if a setup cannot be rendered or its test captures
+        scored.
     """
     out = Path(out)
+    executor = executor or LocalExecutor()
     if suite is None:
         if data_root is None:
             raise ProcamError("bench without a suite: give the dataset root whose setups to take (--data)")
@@ -267,92 +212,66 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         setups = [s.name for s in suite]
     data_root = Path(data_root or out / "data")
     spec = FrameSpec(max(max(cfg.sizes), TABLE2["n_train"]), cfg.tests, (cfg.canonical,) * 2)
-    for s in suite or []:
-        write_setup(data_root, s, spec, progress=progress)
-    pretrain = None
-    if "2" in cfg.tables and white is not None:
-        write_setup(data_root, white, spec, progress=progress)
+    table2_white = "2" in cfg.tables and white is not None
+    renders = [RenderJob(data_root, s, spec, progress)
+               for s in [*(suite or []), *([white] if table2_white else [])]]
+    gpus = executor.gpus()
+    for job, done in zip(renders, executor.run(tasks(render, renders, gpus))):
+        if not done["ok"]:  # the bench's setups are all needed: a refused render stops it
+            raise ProcamError(f"render {job.setup.name}: {done['error']}")
+    pretrain, pretrain_error = None, None
+    if table2_white:
         pretrain = out / "runs" / white.name / "compennet-pretrain"
-        pre_cfg = _train_config(cfg, "compennet", max(cfg.sizes))
-        if _reusable(pretrain, pre_cfg, data_root / white.name) is None:
-            train_run(data_root / white.name, pre_cfg, pretrain, progress, True)
+        pre_job = FitJob(data_root / white.name, _train_config(cfg, "compennet", max(cfg.sizes)), pretrain,
+                         closed_loop=False, progress=progress)
+        done = executor.run(tasks(fit, [pre_job], gpus))[0]
+        pretrain_error = None if done["ok"] else f"pre-training on {white.name} failed: {done['error']}"
 
-    rows, failures = [], []
-    test_data: dict[str, SetupData] = {}  # the current setup's test pairs, for the official outputs
-    for job in _jobs(cfg, setups, pretrain):
-        run_dir = out / "runs" / job.setup / job.run_name
-        try:
-            job_values = dict(job.extra, loss=job.loss,
-                              init=str(Path(job.init).resolve()) if job.init else None)
-            train_cfg = _train_config(cfg, job.method, job.n_train, **job_values)
-            metrics = _reusable(run_dir, train_cfg, data_root / job.setup)
-            trained = metrics is None
-            if trained:
-                metrics = train_run(data_root / job.setup, train_cfg, run_dir, progress, overwrite=True)
-            tag, dest = official_tag(train_cfg, job.init is not None), out / "official" / job.setup
-            if trained or not _official_complete(dest, tag, metrics["n_test"]):
-                if job.setup not in test_data:
-                    test_data = {job.setup: load_setup_data(data_root / job.setup, 1, cfg.tests)}
-                write_official_outputs(run_dir, test_data[job.setup], dest, tag)
-            if (cfg.closed_loop and _simulated(data_root / job.setup)
-                    and "psnr_reachable" not in metrics.get("closed_loop", {})):
-                metrics = _add_closed_loop(run_dir, data_root / job.setup, cfg.tests)
-        except TrainingInterrupted:  # the user or a scheduler stops the whole bench
-            raise
-        except Exception as exc:  # one failure must not lose the others' results
-            failures.append({**asdict(job), "error": f"{type(exc).__name__}: {exc}",
-                             "traceback": traceback.format_exc(limit=3)})
-            continue
-        rows.append({**asdict(job), "extra": dict(job.extra), "run": str(run_dir), "official_tag": tag,
-                     **metrics})
-
+    bench_jobs = _jobs(cfg, setups, pretrain)
+    fits = []
+    for job in bench_jobs:
+        job_values = dict(job.extra, loss=job.loss, init=str(Path(job.init).resolve()) if job.init else None)
+        fits.append(FitJob(data_root / job.setup, _train_config(cfg, job.method, job.n_train, **job_values),
+                           out / "runs" / job.setup / job.run_name, closed_loop=cfg.closed_loop,
+                           official=out / "official" / job.setup, pretrained=job.init is not None,
+                           progress=progress))
     masks = out / "reachable" if cfg.closed_loop else None
+    bases = [BaselineJob(data_root / s, cfg.tests, cfg.closed_loop, masks) for s in setups]
+    todo = [i for i, job in enumerate(bench_jobs) if not (job.init and pretrain_error)]
+    done = executor.run(tasks(fit, [fits[i] for i in todo], gpus) + tasks(baselines, bases, gpus))
+    fitted = {i: {"run": str(fits[i].run_dir), "ok": False, "error": pretrain_error} for i in range(len(fits))}
+    fitted.update({i: {"run": str(fits[i].run_dir), **d} for i, d in zip(todo, done)})
+    base = dict(zip(setups, done[len(todo):]))
+
+    rows, failures, results = [], [], []
+    seed = cfg.overrides.get("seed", 0)
+    for i, job in enumerate(bench_jobs):
+        record = fitted[i]
+        results.append({"point": 0, "setup": job.setup, "method": job.method, "n_train": job.n_train,
+                        "seed": seed, "table": job.table, "variant": job.run_name,
+                        **result_row(record, base[job.setup], out)})
+        if not record["ok"]:
+            failures.append({**asdict(job), "error": record["error"], "traceback": record.get("traceback", "")})
+            continue
+        rows.append({**asdict(job), "extra": dict(job.extra), "run": record["run"],
+                     "official_tag": record["official_tag"], **record["metrics"]})
+    write_results(out, (), results, extra=("table", "variant"))
+    write_study_record(out, {
+        "name": out.name, "question": f"The CompenNet paper's Tables {', '.join(cfg.tables)} on these setups",
+        "kind": "bench", "base": None, "axes": [], "methods": list(cfg.methods), "seeds": [seed],
+        "n_train": list(cfg.sizes), "n_test": cfg.tests, "size": [cfg.canonical] * 2 if suite else None,
+        "overrides": cfg.overrides, "tables": list(cfg.tables), "profile": cfg.profile,
+        "executor": executor.name,
+        "setups": {s: os.path.relpath(data_root / s / "setup.toml", out) for s in setups
+                   if simulated(data_root / s)}})
+
     uncompensated, oracle, sizes = {}, {}, set()
     for s in setups:
-        setup_masks = masks if _simulated(data_root / s) else None
-        uncompensated[s], oracle_rows, size = _setup_baselines(data_root / s, cfg.tests, setup_masks)
+        if not base[s]["ok"]:
+            raise ProcamError(f"setup {s}: scoring the uncompensated test captures failed: {base[s]['error']}")
+        uncompensated[s], size = base[s]["uncompensated"], tuple(base[s]["size"])
         sizes.add(size)
-        if oracle_rows is not None:
-            oracle[s] = oracle_rows
+        if base[s]["oracle"] is not None:
+            oracle[s] = base[s]["oracle"]
     image_size = ", ".join(f"{w}x{h}" if w != h else f"{w}²" for h, w in sorted(sizes)) + " px"
     return write_tables(out, cfg, rows, failures, uncompensated, oracle, image_size)
-
-
-def _setup_baselines(setup_dir: Path, n_test: int,
-                     masks: Path | None) -> tuple[dict, list[dict] | None, tuple[int, int]]:
-    """The method-free rows of one setup: scores of the test captures x̃ against x, the oracle and
-    the image size (height, width).
-
-    With a ``masks`` folder (closed loop), the uncompensated scores also get the closed-loop scores
-    of y projected as is (its captures are the test captures), ``masks/<setup>.png`` shows the
-    first test images with their physically unreachable pixels tinted magenta, and the iterative
-    refinement rows are returned (``None`` otherwise).
-    """
-    data = load_setup_data(setup_dir, n_train=1, n_test=n_test)
-    captures, y = data.test.captures, data.test.frames
-    scores = evaluate(captures, y)
-    if masks is None:
-        return scores, None, data.size
-    from compensation.evaluation.closed_loop import (closed_loop_scores, iterative_refinement,
-                                                     reachable_mask, reachable_overlay, simulator_for)
-
-    mask = reachable_mask(data, y)
-    scores["closed_loop"] = closed_loop_scores(captures, y, mask)
-    k = min(N_MASK_FIGURE, y.shape[0])
-    strip = reachable_overlay(y[:k], mask[:k]).permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
-    write_png(masks / f"{data.name}.png", to_uint8(strip.numpy()))
-    return scores, iterative_refinement(data, simulator_for(setup_dir)), data.size
-
-
-def _add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:
-    from compensation.evaluation.closed_loop import closed_loop, simulator_for
-
-    method, _ = load_run(run_dir)
-    data = load_setup_data(setup_dir, n_train=1, n_test=n_test)
-    t0 = time.perf_counter()
-    scores = closed_loop(method, data, simulator_for(setup_dir))
-    scores["seconds"] = round(time.perf_counter() - t0, 3)
-    metrics = read_json(run_dir / "metrics.json", "run metrics")
-    metrics["closed_loop"] = scores
-    write_json(run_dir / "metrics.json", metrics)
-    return metrics

@@ -19,7 +19,7 @@ from sim.setup.toml import read_toml
 from sim.setup.validation import parse_setup, shown
 
 
-def _merge(base: Mapping, override: Mapping) -> dict:
+def merge_setup(base: Mapping, override: Mapping) -> dict:
     """Deep merge of ``override`` onto ``base`` (tables recursively, other values replaced).
 
     The two forms of the ambient light exclude each other: an override giving ``radiance`` drops
@@ -35,7 +35,7 @@ def _merge(base: Mapping, override: Mapping) -> dict:
                     merged.pop("intensity", None)
                 if "temperature" in value:
                     merged.pop("radiance", None)
-            out[key] = _merge(merged, value)
+            out[key] = merge_setup(merged, value)
         else:
             out[key] = copy.deepcopy(value)
     return out
@@ -45,8 +45,8 @@ def load_suite(path: Path | str) -> list[Setup]:
     """Read a suite file: ``base`` (a setup file, relative to the suite) and ``[[setup]]`` tables.
 
     Each ``[[setup]]`` table holds a ``name`` and partial overrides that are deep-merged onto the
-    base file's mapping (see :func:`_merge` for the ambient light) and validated; errors name the
-    suite file and the key as ``setup[i].section.key`` (i from 0). Relative texture paths are
+    base file's mapping (see :func:`merge_setup` for the ambient light) and validated; errors name
+    the suite file and the key as ``setup[i].section.key`` (i from 0). Relative texture paths are
     relative to the file that gives them.
 
     Parameters
@@ -91,7 +91,7 @@ def _suite(suite: Mapping, path: Path) -> list[Setup]:
         prefix = f"setup[{i}]."
         if "name" not in entry:
             raise SetupError(f"{source}: {prefix}name: missing; expected a string matching {NAME_PATTERN}")
-        setup = parse_setup(_merge(base_data, entry), source, path.parent, prefix)
+        setup = parse_setup(merge_setup(base_data, entry), source, path.parent, prefix)
         if setup.name in seen:
             raise SetupError(f'{source}: {prefix}name = "{setup.name}": expected a unique name; '
                              f"setup[{seen[setup.name]}] has it too")

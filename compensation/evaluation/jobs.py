@@ -1,0 +1,379 @@
+"""The jobs a study or benchmark is made of, and the records of its folder.
+
+Each job is a module-level function of one frozen dataclass, so that any executor of
+:mod:`compensation.executors` runs it, in this process or on another machine sharing the folder:
+
+- :func:`render` (:class:`RenderJob`): one setup into the dataset root;
+- :func:`fit` (:class:`FitJob`): train one method, or reuse a finished run of exactly the same
+  configuration (:func:`reusable`), score it on the held-out pairs, and in closed loop (its
+  compensation projected back through the setup, the captures of the first test images saved);
+- :func:`baselines` (:class:`BaselineJob`): a setup's method-free scores: the test captures
+  against the desired images and, in closed loop, the iterative-refinement oracle.
+
+Records: ``results.csv`` (:func:`result_row`, :func:`write_results`) and ``study.json``
+(:func:`write_study_record`).
+"""
+from __future__ import annotations
+
+import csv
+import fcntl
+import hashlib
+import io
+import json
+import math
+import os
+import platform
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+from compensation.data import load_setup_data
+from compensation.evaluation.metrics import evaluate
+from compensation.evaluation.official import official_complete, official_tag, write_official_outputs
+from compensation.training.config import TrainConfig
+from compensation.training.runs import load_run, package_version, scores_are_current, train_run
+from sim.dataset import FrameSpec, image_name, write_setup
+from sim.errors import ProcamError
+from sim.io import atomic_write, read_json, to_uint8, write_json, write_png
+from sim.setup import Setup
+
+N_CAPTURES = 4
+"""Closed-loop captures saved per run (of the first test images), ``<run>/closed_loop/img_XXXX.png``."""
+DIVERGED_RATIO = 1.5
+"""A run whose last logged training loss exceeds this multiple of its first has diverged."""
+SCORES = ("psnr", "rmse", "ssim", "deltaE")
+"""Scores of a run (:func:`~compensation.evaluation.metrics.evaluate`), in column order."""
+STATUSES = ("ok", "failed", "nan", "diverged")
+"""A result row's ``status``: finished; raised an error (``error`` says which); a score is not
+finite; the training loss grew (:data:`DIVERGED_RATIO`) or is not finite."""
+
+
+def _column(score: str) -> str:
+    return score.lower()
+
+
+RESULT_COLUMNS = (
+    "setup", "method", "n_train", "seed", "status", "error",
+    *(_column(s) for s in SCORES), *(f"cl_{_column(s)}" for s in SCORES),
+    *(f"unc_{_column(s)}" for s in SCORES), "cl_unc_psnr", "cl_unc_ssim", "cl_unc_deltae",
+    "oracle_psnr", "oracle_ssim", "oracle_deltae", "fit_s", "infer_ms", "run",
+    "cl_psnr_reachable", "cl_unc_psnr_reachable")
+"""Columns of ``results.csv`` after ``point`` and the axis columns (an axis on ``n_train`` is the
+``n_train`` column itself); a bench adds ``table`` and ``variant``."""
+
+
+@dataclass(frozen=True)
+class RenderJob:
+    """Render ``setup`` into ``root`` (what is finished is kept)."""
+
+    root: Path
+    setup: Setup
+    spec: FrameSpec
+    progress: bool = False
+
+
+@contextmanager
+def _render_turn(root: Path) -> Iterator[None]:
+    """Wait for this process's turn to write the dataset root ``root`` (``root/.queue``, an
+    exclusive ``flock``): renders into one root run one after the other, whoever started them."""
+    root.mkdir(parents=True, exist_ok=True)
+    fd = os.open(root / ".queue", os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+def render(job: RenderJob) -> dict:
+    """Run a :class:`RenderJob`; returns ``setup`` and ``seconds`` (waiting included)."""
+    t0 = time.perf_counter()
+    with _render_turn(Path(job.root)):
+        write_setup(Path(job.root), job.setup, job.spec, progress=job.progress)
+    return {"setup": job.setup.name, "seconds": round(time.perf_counter() - t0, 3)}
+
+
+@dataclass(frozen=True)
+class FitJob:
+    """Train ``cfg`` on the dataset ``setup_dir`` into ``run_dir`` (or reuse it), then score it.
+
+    Attributes
+    ----------
+    closed_loop : bool
+        Also project its compensation back through the setup (simulated setups only: those with a
+        ``setup.toml``) and save the first :data:`N_CAPTURES` captures.
+    official : Path or None
+        Write the official code's outputs under this folder (:mod:`~compensation.evaluation.official`).
+    pretrained : bool
+        The run starts from a pre-trained one (its official tag says so).
+    """
+
+    setup_dir: Path
+    cfg: TrainConfig
+    run_dir: Path
+    closed_loop: bool = True
+    official: Path | None = None
+    pretrained: bool = False
+    progress: bool = False
+
+
+def reusable(run_dir: Path, train_cfg: TrainConfig, setup_dir: Path) -> dict | None:
+    """The metrics of a finished run made with exactly ``train_cfg`` (device aside) on the dataset
+    ``setup_dir`` by this procam version and scored with today's metrics
+    (:func:`~compensation.training.runs.scores_are_current`), else None."""
+    if not (run_dir / "metrics.json").exists():
+        return None
+    try:
+        config = read_json(run_dir / "config.json", "run configuration")
+        done = config["train"]
+    except (ProcamError, KeyError, TypeError):
+        return None
+    wanted = train_cfg.to_dict()
+    if (config.get("dataset") != str(Path(setup_dir).resolve())
+            or config.get("procam_version") != package_version()
+            or not all(done.get(k) == v for k, v in wanted.items() if k != "device")):
+        return None
+    metrics = read_json(run_dir / "metrics.json", "run metrics")
+    return metrics if scores_are_current(metrics) else None
+
+
+def simulated(setup_dir: Path) -> bool:
+    """Whether procam rendered the setup (its ``setup.toml`` makes a closed loop possible)."""
+    return (Path(setup_dir) / "setup.toml").exists()
+
+
+def _closed_loop_done(run_dir: Path, metrics: dict) -> bool:
+    scores = metrics.get("closed_loop", {})
+    shown = min(N_CAPTURES, metrics.get("n_test", 0))
+    return (all(k in scores for k in (*SCORES, "psnr_reachable"))
+            and all((run_dir / "closed_loop" / image_name(i)).exists() for i in range(1, shown + 1)))
+
+
+def add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:
+    """Score a finished run in closed loop: ``closed_loop`` added to its ``metrics.json`` (scores
+    of :func:`~compensation.evaluation.closed_loop.closed_loop` and ``seconds``), the captures of
+    the first :data:`N_CAPTURES` test images written to ``run_dir/closed_loop/img_XXXX.png``
+    (canonical view). Returns the metrics."""
+    from compensation.evaluation.closed_loop import closed_loop, simulator_for
+
+    method, _ = load_run(run_dir)
+    data = load_setup_data(setup_dir, n_train=1, n_test=n_test)
+    t0 = time.perf_counter()
+    scores, captured = closed_loop(method, data, simulator_for(setup_dir), return_captures=True)
+    scores["seconds"] = round(time.perf_counter() - t0, 3)
+    for i, image in enumerate(captured[:N_CAPTURES].permute(0, 2, 3, 1).numpy(), start=1):
+        write_png(run_dir / "closed_loop" / image_name(i), to_uint8(image))
+    metrics = read_json(run_dir / "metrics.json", "run metrics")
+    metrics["closed_loop"] = scores
+    write_json(run_dir / "metrics.json", metrics)
+    return metrics
+
+
+def fit(job: FitJob) -> dict:
+    """Run a :class:`FitJob`; returns ``metrics`` (the run's ``metrics.json``), ``trained``
+    (False when a finished run was reused), the ``official_tag`` of its outputs and ``run`` (its
+    folder)."""
+    setup_dir, run_dir = Path(job.setup_dir), Path(job.run_dir)
+    metrics = reusable(run_dir, job.cfg, setup_dir)
+    trained = metrics is None
+    if trained:
+        metrics = train_run(setup_dir, job.cfg, run_dir, job.progress, overwrite=True)
+    tag = official_tag(job.cfg, job.pretrained)
+    if job.official is not None and (trained or not official_complete(job.official, tag, metrics["n_test"])):
+        data = load_setup_data(setup_dir, 1, metrics["n_test"])
+        write_official_outputs(run_dir, data, Path(job.official), tag)
+    if job.closed_loop and simulated(setup_dir) and (trained or not _closed_loop_done(run_dir, metrics)):
+        metrics = add_closed_loop(run_dir, setup_dir, metrics["n_test"])
+    return {"metrics": metrics, "trained": trained, "official_tag": tag, "run": str(run_dir)}
+
+
+@dataclass(frozen=True)
+class BaselineJob:
+    """The method-free scores of the dataset ``setup_dir`` on its first ``n_test`` test pairs.
+
+    Attributes
+    ----------
+    closed_loop : bool
+        Also the closed-loop scores of y projected as is and the iterative-refinement oracle
+        (simulated setups only).
+    masks : Path or None
+        Write ``masks/<setup>.png``: the first test images with their physically unreachable
+        pixels tinted magenta (closed loop only).
+    record : Path or None
+        A JSON file keeping the result: reused while the dataset, ``n_test`` and the procam
+        version are the same.
+    """
+
+    setup_dir: Path
+    n_test: int
+    closed_loop: bool = True
+    masks: Path | None = None
+    record: Path | None = None
+
+
+def _baseline_key(job: BaselineJob, closed: bool) -> dict:
+    meta = Path(job.setup_dir) / "meta.json"
+    digest = hashlib.sha1(meta.read_bytes()).hexdigest() if meta.exists() else None
+    return {"dataset": str(Path(job.setup_dir).resolve()), "meta_sha1": digest, "n_test": job.n_test,
+            "closed_loop": closed, "procam_version": package_version()}
+
+
+def baselines(job: BaselineJob) -> dict:
+    """Run a :class:`BaselineJob`; returns ``uncompensated`` (scores of the test captures x̃
+    against y, with ``closed_loop`` scores of y projected as is when simulated), ``oracle`` (the
+    rows of :func:`~compensation.evaluation.closed_loop.iterative_refinement`, or None) and
+    ``size`` ([height, width])."""
+    setup_dir = Path(job.setup_dir)
+    closed = job.closed_loop and simulated(setup_dir)
+    key = _baseline_key(job, closed)
+    if job.record is not None and Path(job.record).exists() and job.masks is None:
+        try:
+            kept = read_json(job.record, "baseline record")
+            if kept.get("key") == key:
+                return kept["result"]
+        except ProcamError:
+            pass
+    data = load_setup_data(setup_dir, n_train=1, n_test=job.n_test)
+    captures, y = data.test.captures, data.test.frames
+    scores, oracle = evaluate(captures, y), None
+    if closed:
+        from compensation.evaluation.closed_loop import (closed_loop_scores, iterative_refinement,
+                                                         reachable_mask, reachable_overlay, simulator_for)
+
+        mask = reachable_mask(data, y)
+        scores["closed_loop"] = closed_loop_scores(captures, y, mask)
+        if job.masks is not None:
+            k = min(N_CAPTURES, y.shape[0])
+            strip = reachable_overlay(y[:k], mask[:k]).permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
+            write_png(Path(job.masks) / f"{data.name}.png", to_uint8(strip.numpy()))
+        oracle = iterative_refinement(data, simulator_for(setup_dir))
+    result = {"uncompensated": scores, "oracle": oracle, "size": list(data.size)}
+    if job.record is not None:
+        write_json(job.record, {"key": key, "result": result})
+    return result
+
+
+def _loss_grew(run_dir: Path) -> bool:
+    """Whether the run's logged training loss ended above :data:`DIVERGED_RATIO` times its start."""
+    try:
+        with open(run_dir / "loss.csv", newline="") as f:
+            losses = [float(r["loss"]) for r in csv.DictReader(f)]
+    except (OSError, KeyError, ValueError):
+        return False
+    return len(losses) > 1 and losses[-1] > DIVERGED_RATIO * losses[0]
+
+
+def run_status(metrics: dict, run_dir: Path) -> tuple[str, str]:
+    """The ``status`` of a finished run (:data:`STATUSES`, never ``failed``) and why."""
+    loss = metrics.get("final_loss")
+    if loss is not None and not math.isfinite(loss):
+        return "diverged", f"final training loss {loss}"
+    if _loss_grew(run_dir):
+        return "diverged", f"training loss grew above {DIVERGED_RATIO}x its first value"
+    cl = metrics.get("closed_loop", {})
+    bad = [k for k in SCORES if not math.isfinite(metrics.get(k, 0.0))]
+    bad += [f"cl_{k}" for k in SCORES if not math.isfinite(cl.get(k, 0.0))]
+    if bad:
+        return "nan", f"not finite: {', '.join(_column(k) for k in bad)}"
+    return "ok", ""
+
+
+def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
+    """The ``results.csv`` cells of one run (all but ``point``, the axes, ``setup``, ``method``,
+    ``n_train`` and ``seed``, which the caller knows).
+
+    Parameters
+    ----------
+    fitted : dict
+        The :func:`~compensation.executors.attempt` record of its :func:`fit` job, or of the job
+        that kept it from running (``error`` then names that one).
+    base : dict or None
+        The record of its setup's :func:`baselines` job (None: not run).
+    out : Path
+        The study folder (``run`` is written relative to it).
+    """
+    row: dict = {}
+    if fitted.get("ok"):
+        metrics, run_dir = fitted["metrics"], Path(fitted["run"])
+        row["status"], row["error"] = run_status(metrics, run_dir)
+        cl = metrics.get("closed_loop", {})
+        row.update({_column(k): metrics[k] for k in SCORES})
+        row.update({f"cl_{_column(k)}": cl.get(k) for k in SCORES})
+        row.update(fit_s=metrics.get("train_seconds"), infer_ms=cl.get("infer_ms_per_frame"),
+                   cl_psnr_reachable=cl.get("psnr_reachable"))
+        row.update({f"unc_{_column(k)}": metrics["uncompensated"][k] for k in SCORES})
+        row["run"] = os.path.relpath(run_dir, out)
+    else:
+        row["status"], row["error"] = "failed", fitted.get("error", "not run")
+        if "run" in fitted:
+            row["run"] = os.path.relpath(fitted["run"], out)
+    if base and base.get("ok"):
+        unc = base["uncompensated"]
+        row.update({f"unc_{_column(k)}": unc[k] for k in SCORES})
+        cl = unc.get("closed_loop", {})
+        row.update({f"cl_unc_{_column(k)}": cl.get(k) for k in ("psnr", "ssim", "deltaE")},
+                   cl_unc_psnr_reachable=cl.get("psnr_reachable"))
+        if base.get("oracle"):
+            best = max(base["oracle"], key=lambda r: r["iterations"])
+            row.update({f"oracle_{_column(k)}": best[k] for k in ("psnr", "ssim", "deltaE")})
+    return row
+
+
+def _cell(value) -> str:
+    """A CSV cell: empty for a missing value, floats with 6 significant digits, lists as JSON."""
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, (list, tuple)):
+        return json.dumps(list(value))
+    return str(value)
+
+
+def write_results(out: Path, axis_keys: Sequence[str], rows: Sequence[dict],
+                  extra: Sequence[str] = ()) -> Path:
+    """Write ``out/results.csv``: ``point``, one column per axis key (but ``n_train``, which has
+    its own), :data:`RESULT_COLUMNS`, then ``extra``; missing values are empty cells."""
+    header = ["point", *(k for k in axis_keys if k not in RESULT_COLUMNS), *RESULT_COLUMNS, *extra]
+    text = io.StringIO(newline="")
+    writer = csv.writer(text)
+    writer.writerow(header)
+    writer.writerows([_cell(row.get(k)) for k in header] for row in rows)
+    atomic_write(out / "results.csv", text.getvalue())
+    return out / "results.csv"
+
+
+def versions() -> dict:
+    """Versions of procam, torch, Mitsuba and Python."""
+    import torch
+
+    try:
+        mitsuba = version("mitsuba")
+    except PackageNotFoundError:
+        mitsuba = "unknown"
+    return {"procam": package_version(), "torch": torch.__version__, "mitsuba": mitsuba,
+            "python": platform.python_version()}
+
+
+def write_study_record(out: Path, record: dict) -> Path:
+    """Write ``out/study.json``: ``record`` plus ``versions`` and ``created`` (ISO time, UTC)."""
+    write_json(out / "study.json", {**record, "versions": versions(),
+                                    "created": datetime.now(timezone.utc).isoformat(timespec="seconds")})
+    return out / "study.json"
+
+
+def tasks(fn, jobs: Sequence, gpus: float) -> list:
+    """One :class:`~compensation.executors.Task` per job: one CPU core each, and one GPU where the
+    machine or cluster has GPUs (``gpus``) and the job uses them: a render or a baseline (Mitsuba's
+    CUDA variant is chosen when a GPU is present) or a fit whose device is ``auto`` or ``cuda[:N]``."""
+    from compensation.executors import Task
+
+    def needs_gpu(job) -> bool:
+        wanted = job.cfg.device if isinstance(job, FitJob) else "auto"
+        return gpus > 0 and (wanted == "auto" or wanted.startswith("cuda"))
+
+    return [Task(fn, job, num_cpus=1.0, num_gpus=1.0 if needs_gpu(job) else 0.0) for job in jobs]

@@ -1,0 +1,54 @@
+"""The official CompenNet code's outputs of a run, in its layout::
+
+    cam/cmp/<tag>/img_XXXX.png    π†(x̃) for the test captures x̃ (what the surrogate metrics score)
+    prj/cmp/<tag>/img_XXXX.png    π†(y) for the test images y: the frames to project
+
+with the tag of :func:`official_tag` (e.g. ``CompenNet_l1+ssim_500_64_1000``).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from compensation.data import SetupData
+from compensation.methods import get_method
+from compensation.training.config import TrainConfig
+from compensation.training.runs import load_run
+from sim.dataset import image_name
+from sim.io import to_uint8, write_png
+
+
+def official_tag(cfg: TrainConfig, pretrained: bool = False) -> str:
+    """The official code's name of a run's output folder: ``<model>_<loss>_<ntrain>_<batch>_<iters>``.
+
+    ``<model>`` is the method's ``official_name`` (``_pretrained`` appended for a pre-trained
+    initialisation); a method without a ``loss``, ``batch`` or ``iters`` option leaves that field
+    out (TPS: ``TPS_125``; pix2pix: ``pix2pix_125_1_10000``).
+
+    Examples
+    --------
+    >>> from compensation.training.config import make_config
+    >>> official_tag(make_config("paper", "compennet"))
+    'CompenNet_l1+ssim_500_64_1000'
+    >>> official_tag(make_config("quick", "tps-textured", n_train=125))
+    'TPS_textured_125'
+    """
+    options = cfg.options
+    model = get_method(cfg.method).official_name + ("_pretrained" if pretrained else "")
+    fields = [model] + ([options.loss] if hasattr(options, "loss") else []) + [str(cfg.n_train)]
+    return "_".join(fields + [str(getattr(options, k)) for k in ("batch", "iters") if hasattr(options, k)])
+
+
+def write_official_outputs(run_dir: Path, data: SetupData, dest: Path, tag: str) -> None:
+    """Write a run's π†(x̃) of the test captures to ``dest/cam/cmp/<tag>`` and its π†(y) of the
+    test images y (the test frames) to ``dest/prj/cmp/<tag>``, as ``img_XXXX.png`` (8 bit)."""
+    method, config = load_run(run_dir)
+    batch = config["train"].get("eval_batch", 64)
+    for kind, inputs in (("cam", data.test.captures), ("prj", data.test.frames)):
+        frames = method.predict(inputs, data.surface, batch_size=batch).permute(0, 2, 3, 1).numpy()
+        for i, frame in enumerate(frames, start=1):
+            write_png(dest / kind / "cmp" / tag / image_name(i), to_uint8(frame))
+
+
+def official_complete(dest: Path, tag: str, n: int) -> bool:
+    """Whether ``dest`` holds ``n`` images of both kinds under ``tag``."""
+    return all(len(list((dest / kind / "cmp" / tag).glob("img_*.png"))) == n for kind in ("cam", "prj"))

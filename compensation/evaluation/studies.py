@@ -1,0 +1,535 @@
+"""Studies: how each method's scores change with one or two factors of a setup or of its training.
+
+A study file (TOML; the shipped ones are ``scenes/studies/*.toml``)::
+
+    name = "projector-defocus"      # optional, default: the file's stem
+    question = "At which projector aperture does each method stop paying off?"
+    base = "../default.toml"        # setup or suite file, relative to this file, or a shipped scene
+    methods = ["tps", "compennet"]  # registry names
+    seeds = [0, 1, 2]               # optional, default [0]
+    n_train = 125                   # training pairs, or a list of sizes; default: the profile's
+    n_test = 50                     # optional, default: the profile's
+    size = 64                       # canonical pixels, N or [W, H]; default: the profile's
+    profile = "quick"               # training profile, optional
+    render_seeds = false            # optional: true renders every seed's own dataset too
+
+    [setup]                         # optional: partial setup values applied to every point
+    projector = { focus_distance = 0.8 }
+
+    [options]                       # training options, for every run whose method takes them
+    iters = 500
+
+    [[axis]]                        # one or two
+    key = "projector.aperture"      # a setup key "section.key", or a training option
+    values = [0.0, 0.01, 0.02]
+    label = "projector aperture"    # optional, default: the key
+    unit = "m"                      # optional
+
+An axis on a setup key deep-merges ``{section: {key: value}}`` onto every base setup (after the
+study's ``[setup]`` values) and validates
+it like a setup file (errors name the study file and the point); a number given for a key that
+holds an RGB triple (``ambient.radiance``, ``surface.tint``, ``camera.white_balance``) applies to
+all three channels. An axis on a training option (``n_train``, or a method option such as
+``iters``) changes the runs only; a method that does not take the option is fitted once for all
+its values. Two axes make the grid of their values (the *points*, numbered from 0).
+
+The seed of a row is the training seed (:attr:`~compensation.training.config.TrainConfig.seed`:
+initialisation, batch order, sampling); every seed shares one rendered dataset per point, so the
+spread over seeds is the methods' own. With ``render_seeds = true`` the seed also shifts
+``render.seed`` (the Mitsuba sampler and the camera noise: base seed + seed) and each seed gets
+its own dataset, so the spread includes the capture noise.
+
+:func:`run_study` expands a study into jobs (:mod:`compensation.evaluation.jobs`): render each
+setup ``<base>__<section>-<key>-<value>`` into ``DIR/data``, fit each method per seed into
+``DIR/runs/<setup>/<method>-n<n_train>-seed<seed>[-<option><value>]``, score it on held-out pairs and
+in closed loop, and score each setup's baselines; then writes ``DIR/study.json`` and
+``DIR/results.csv``. A finished job with the same configuration is reused, nothing else.
+"""
+from __future__ import annotations
+
+import fnmatch
+import itertools
+import re
+import tomllib
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+
+from compensation.evaluation.jobs import (BaselineJob, FitJob, RenderJob, baselines, fit, render,
+                                          result_row, tasks, write_results, write_study_record)
+from compensation.executors import LocalExecutor
+from compensation.methods import get_method
+from compensation.training.config import COMMON, PROFILES, TrainConfig, applicable, make_config, option_owners
+from sim.dataset import FrameSpec
+from sim.errors import ProcamError
+from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
+from sim.setup.schema import SECTIONS
+
+STUDY_KEYS = ("name", "question", "base", "methods", "seeds", "n_train", "n_test", "size", "profile",
+              "render_seeds", "setup", "options", "axis")
+"""Keys of a study file."""
+AXIS_KEYS = ("key", "values", "label", "unit")
+"""Keys of an ``[[axis]]`` table."""
+TRAIN_AXIS_REFUSED = ("n_test", "seed", "device", "eval_batch")
+"""Training options that cannot be an axis (seeds are their own list; the others change no score)."""
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One factor of a study and the values it takes."""
+
+    key: str
+    """A setup key ``section.key`` or a training option (``n_train``, ``iters``, …)."""
+    values: tuple
+    """The values, in the order the charts draw them."""
+    label: str = ""
+    """Axis label for tables and charts (default: the key)."""
+    unit: str = ""
+    """Unit of the values (``m``, ``px``, …), or empty."""
+
+    @property
+    def on_setup(self) -> bool:
+        """Whether the axis changes the setup (else the training)."""
+        return "." in self.key
+
+
+@dataclass(frozen=True)
+class Study:
+    """A study file, validated (see the module docstring for its keys)."""
+
+    path: Path
+    name: str
+    question: str
+    base: str
+    axes: tuple[Axis, ...]
+    methods: tuple[str, ...]
+    seeds: tuple[int, ...] = (0,)
+    n_train: tuple[int, ...] = (PROFILES["quick"]["n_train"],)
+    n_test: int = PROFILES["quick"]["n_test"]
+    size: tuple[int, int] = (PROFILES["quick"]["size"],) * 2
+    profile: str = "quick"
+    render_seeds: bool = False
+    setup: dict = field(default_factory=dict)
+    """Partial setup values applied to every point (before the axes)."""
+    options: dict = field(default_factory=dict)
+    """Training options of every run whose method takes them."""
+    only: tuple[str, ...] = ()
+    """Point numbers or setup-name patterns to run (``--only``); empty: all."""
+    overrides: dict = field(default_factory=dict)
+    """What the command line changed (recorded in ``study.json``)."""
+
+
+def _error(path: Path, key: str, value, expected: str) -> ProcamError:
+    return ProcamError(f"{path}: {key} = {value!r}: {expected}")
+
+
+def _positive_ints(path: Path, key: str, value, allow_list: bool = True) -> tuple[int, ...]:
+    items = value if allow_list and isinstance(value, list) else [value]
+    if not items or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in items):
+        raise _error(path, key, value, "expected a positive integer" + (" or a list of them" if allow_list else ""))
+    return tuple(items)
+
+
+def _size(path: Path, value) -> tuple[int, int]:
+    if isinstance(value, int) and not isinstance(value, bool):
+        value = [value, value]
+    if (not isinstance(value, list) or len(value) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 8 for v in value)):
+        raise _error(path, "size", value, "expected a side in pixels (>= 8) or [width, height]")
+    return tuple(value)
+
+
+def _axis(path: Path, i: int, table) -> Axis:
+    where = f"axis[{i}]"
+    if not isinstance(table, dict):
+        raise ProcamError(f"{path}: {where}: expected a table with key and values")
+    if unknown := sorted(set(table) - set(AXIS_KEYS)):
+        raise ProcamError(f"{path}: {where}.{unknown[0]}: unknown key; valid keys: {', '.join(AXIS_KEYS)}")
+    key, values = table.get("key"), table.get("values")
+    if not isinstance(key, str) or not key:
+        raise _error(path, f"{where}.key", key, "expected a setup key 'section.key' or a training option")
+    if not isinstance(values, list) or not values:
+        raise _error(path, f"{where}.values", values, "expected a non-empty list")
+    if len({repr(v) for v in values}) < len(values):
+        raise _error(path, f"{where}.values", values, "expected distinct values")
+    if "." in key:
+        section = key.split(".", 1)[0]
+        if section not in SECTIONS:
+            raise _error(path, f"{where}.key", key, f"unknown setup section {section!r}; sections: "
+                         f"{', '.join(SECTIONS)}")
+    elif key in TRAIN_AXIS_REFUSED:
+        raise _error(path, f"{where}.key", key, "not a study axis (seeds have their own list; "
+                     f"{', '.join(k for k in TRAIN_AXIS_REFUSED if k != 'seed')} change no score)")
+    elif key != "n_train" and key not in option_owners():
+        raise _error(path, f"{where}.key", key, "expected a setup key 'section.key', n_train, or a "
+                     f"method option ({', '.join(option_owners())})")
+    for text_key in ("label", "unit"):
+        if not isinstance(table.get(text_key, ""), str):
+            raise _error(path, f"{where}.{text_key}", table[text_key], "expected a string")
+    return Axis(key, tuple(values), table.get("label", key), table.get("unit", ""))
+
+
+def load_study(path: Path | str) -> Study:
+    """Read and check a study file (the base and the points are checked by :func:`expand`).
+
+    Raises
+    ------
+    ProcamError
+        If the file cannot be read or is not TOML, or a key or value is unknown or invalid; the
+        message names the file and the key.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except OSError as exc:
+        raise ProcamError(f"{path}: cannot read the study file ({exc.strerror or exc})") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ProcamError(f"{path}: not valid TOML ({exc})") from None
+    if unknown := sorted(set(data) - set(STUDY_KEYS)):
+        raise ProcamError(f"{path}: {unknown[0]}: unknown key; valid keys of a study: {', '.join(STUDY_KEYS)}")
+    for key in ("base", "methods", "axis"):
+        if key not in data:
+            raise ProcamError(f"{path}: {key}: missing")
+    profile = data.get("profile", "quick")
+    if profile not in PROFILES:
+        raise _error(path, "profile", profile, f"expected one of {', '.join(PROFILES)}")
+    defaults = PROFILES[profile]
+    for key in ("name", "question", "base"):
+        if not isinstance(data.get(key, ""), str):
+            raise _error(path, key, data[key], "expected a string")
+    methods = data["methods"]
+    if not isinstance(methods, list) or not methods or not all(isinstance(m, str) for m in methods):
+        raise _error(path, "methods", methods, "expected a non-empty list of method names")
+    for m in methods:
+        try:
+            get_method(m)
+        except ProcamError as exc:
+            raise ProcamError(f"{path}: methods: {exc}") from None
+    seeds = data.get("seeds", [0])
+    if (not isinstance(seeds, list) or not seeds
+            or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)):
+        raise _error(path, "seeds", seeds, "expected a non-empty list of integers >= 0")
+    axes = data["axis"]
+    if not isinstance(axes, list) or not 1 <= len(axes) <= 2:
+        raise ProcamError(f"{path}: axis: expected one or two [[axis]] tables")
+    axes = tuple(_axis(path, i, a) for i, a in enumerate(axes))
+    if len({a.key for a in axes}) < len(axes):
+        raise ProcamError(f"{path}: axis: the two axes have the same key {axes[0].key!r}")
+    options = data.get("options", {})
+    if not isinstance(options, dict):
+        raise _error(path, "options", options, "expected a table of training options")
+    fixed = data.get("setup", {})
+    if not isinstance(fixed, dict) or "name" in fixed:
+        raise _error(path, "setup", fixed, "expected a table of setup sections (without a name)")
+    if not isinstance(data.get("render_seeds", False), bool):
+        raise _error(path, "render_seeds", data["render_seeds"], "expected true or false")
+    return Study(
+        path=path, name=data.get("name", path.stem), question=data.get("question", ""),
+        base=data["base"], axes=axes, methods=tuple(methods), seeds=tuple(seeds),
+        n_train=_positive_ints(path, "n_train", data.get("n_train", defaults["n_train"])),
+        n_test=_positive_ints(path, "n_test", data.get("n_test", defaults["n_test"]), False)[0],
+        size=_size(path, data.get("size", defaults["size"])), profile=profile,
+        render_seeds=data.get("render_seeds", False), setup=dict(fixed), options=dict(options))
+
+
+def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: tuple[int, ...] | None = None,
+                   n_test: int | None = None, iters: int | None = None, seeds: int | None = None,
+                   methods: tuple[str, ...] | None = None, only: tuple[str, ...] | None = None) -> Study:
+    """The study with the command line's smoke-run overrides (None: unchanged), recorded in
+    :attr:`Study.overrides`. ``n_train`` and ``iters`` replace the values of an axis on that key;
+    ``seeds`` N takes the seeds 0 … N-1.
+
+    Raises
+    ------
+    ProcamError
+        If a method is unknown or a value is not positive.
+    """
+    given = {"size": size, "n_train": n_train, "n_test": n_test, "iters": iters, "seeds": seeds,
+             "methods": methods, "only": only}
+    given = {k: v for k, v in given.items() if v is not None}
+    changes: dict = {}
+    axes = list(study.axes)
+    for key, value in (("n_train", n_train), ("iters", iters)):
+        if value is None:
+            continue
+        values = tuple(value) if isinstance(value, tuple) else (value,)
+        on_axis = [i for i, a in enumerate(axes) if a.key == key]
+        if on_axis:
+            axes[on_axis[0]] = replace(axes[on_axis[0]], values=values)
+        elif key == "n_train":
+            changes["n_train"] = values
+        else:
+            changes["options"] = {**study.options, key: value}
+    if size is not None:
+        changes["size"] = tuple(size)
+    if n_test is not None:
+        changes["n_test"] = n_test
+    if seeds is not None:
+        changes["seeds"] = tuple(range(seeds))
+    if methods is not None:
+        for m in methods:
+            get_method(m)
+        changes["methods"] = tuple(methods)
+    if only is not None:
+        changes["only"] = tuple(only)
+    return replace(study, axes=tuple(axes), overrides={**study.overrides, **given}, **changes)
+
+
+def _slug(value) -> str:
+    """A value in a setup name (letters, digits, ``_`` and ``-``): ``0.005`` → ``0p005``,
+    ``-2`` → ``m2``, ``[1, 0.5]`` → ``1x0p5``.
+
+    >>> _slug(0.005), _slug(-2), _slug([1.0, 0.5, 0.5]), _slug("RGGB")
+    ('0p005', 'm2', '1p0x0p5x0p5', 'RGGB')
+    """
+    if isinstance(value, (list, tuple)):
+        return "x".join(_slug(v) for v in value)
+    text = str(value).lower() if isinstance(value, bool) else str(value)
+    text = text.replace(".", "p").replace("+", "")
+    text = re.sub(r"^-", "m", text)
+    return re.sub(r"[^A-Za-z0-9_-]", "", text)
+
+
+def _triple_keys() -> set[str]:
+    """Setup keys holding an RGB triple of numbers (a number given for them is broadcast)."""
+    return {f"{section}.{f.name}" for section, cls in SECTIONS.items() for f in fields(cls)
+            if isinstance(f.default, tuple) and len(f.default) == 3
+            and all(isinstance(v, (int, float)) for v in f.default)}
+
+
+@dataclass(frozen=True)
+class Point:
+    """One combination of axis values, numbered from 0 in the grid's order (the last axis fastest)."""
+
+    index: int
+    values: tuple
+
+    def of(self, axes: tuple[Axis, ...], on_setup: bool) -> dict:
+        """The point's values of the axes on the setup (or on the training), by key."""
+        return {a.key: v for a, v in zip(axes, self.values) if a.on_setup == on_setup}
+
+
+@dataclass(frozen=True)
+class Run:
+    """One row of ``results.csv``: a method fitted with one seed on one setup of one point."""
+
+    point: Point
+    setup: str
+    method: str
+    n_train: int
+    seed: int
+    cfg: TrainConfig
+    run: str
+    """The run folder relative to the study folder, ``runs/<setup>/<name>``."""
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The jobs of a study: the setups to render (by name, in order) and the runs."""
+
+    points: tuple[Point, ...]
+    setups: dict
+    runs: tuple[Run, ...]
+
+
+def base_path(study: Study) -> str:
+    """The study's ``base``: a path relative to the study file where that file exists, else the
+    name of a shipped scene."""
+    candidate = study.path.parent / study.base
+    return str(candidate) if candidate.exists() else study.base
+
+
+def _point_setup(study: Study, base: Setup, point: Point, seed: int | None) -> Setup:
+    """The base setup with the point's setup values (and, with ``seed``, its render seed)."""
+    triples = _triple_keys()
+    override: dict = {}
+    name = base.name
+    for key, value in point.of(study.axes, True).items():
+        section, leaf = key.split(".", 1)
+        name += f"__{section}-{leaf}-{_slug(value)}"
+        if key in triples and isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = [value] * 3
+        override.setdefault(section, {})[leaf] = value
+    if seed is not None:
+        override.setdefault("render", {})["seed"] = base.render.seed + seed
+        name += f"__seed{seed}"
+    mapping = merge_setup(merge_setup(tomllib.loads(dump_setup(base)), study.setup), {**override, "name": name})
+    shown = ", ".join(f"{k} = {v!r}" for k, v in point.of(study.axes, True).items())
+    return parse_setup(mapping, f"{study.path} (point {point.index}: {shown})", study.path.parent)
+
+
+def _train_config(study: Study, method: str, n_train: int, seed: int, point: Point) -> TrainConfig:
+    values = {**study.options, **point.of(study.axes, False), "n_train": n_train, "n_test": study.n_test,
+              "seed": seed}
+    try:
+        return make_config(study.profile, method, **applicable(method, values))
+    except ProcamError as exc:
+        raise ProcamError(f"{study.path} (point {point.index}): {exc}") from None
+
+
+def _run_name(method: str, n_train: int, seed: int, cfg: TrainConfig, point: Point, study: Study) -> str:
+    """``<method>-n<n_train>-seed<seed>``, then ``-<option><value>`` for each training axis the
+    method takes (one run shared by the points of an option it does not take)."""
+    taken = applicable(method, point.of(study.axes, False))
+    return f"{method}-n{n_train}-seed{seed}" + "".join(
+        f"-{k}{_slug(v)}" for k, v in taken.items() if k != "n_train")
+
+
+def _selected(study: Study, point: Point, setup: str) -> bool:
+    if not study.only:
+        return True
+    return any(item == str(point.index) or fnmatch.fnmatchcase(setup, item) for item in study.only)
+
+
+def expand(study: Study) -> Plan:
+    """The setups and runs of a study (nothing is rendered or trained).
+
+    Raises
+    ------
+    ProcamError
+        If the base cannot be loaded, a point gives an invalid setup (named with the study file,
+        the point and its values), two points give one setup name, an option is not taken by any
+        of the study's methods, a training value is invalid, or ``--only`` selects nothing.
+    """
+    try:
+        bases = load_setups(base_path(study))
+    except ProcamError as exc:
+        raise ProcamError(f"{study.path}: base = {study.base!r}: {exc}") from None
+    used = set(COMMON).union(*(get_method(m).options.names() for m in study.methods))
+    if unknown := sorted(set(study.options) - used):
+        raise ProcamError(f"{study.path}: options.{unknown[0]}: not an option of any method of the study "
+                          f"({', '.join(study.methods)})")
+    for axis in study.axes:
+        if not axis.on_setup and axis.key not in used:
+            raise ProcamError(f"{study.path}: axis {axis.key!r}: not an option of any method of the "
+                              f"study ({', '.join(study.methods)})")
+    points = tuple(Point(i, values) for i, values in
+                   enumerate(itertools.product(*(a.values for a in study.axes))))
+    train_axis = any(a.key == "n_train" for a in study.axes)
+    setups: dict[str, Setup] = {}
+    origin: dict[str, tuple] = {}
+    runs = []
+    for point in points:
+        for base in bases:
+            for seed in study.seeds:
+                setup = _point_setup(study, base, point, seed if study.render_seeds else None)
+                key = (base.name, point.of(study.axes, True), seed if study.render_seeds else None)
+                if origin.setdefault(setup.name, key) != key:
+                    raise ProcamError(f"{study.path}: two points give the setup name {setup.name!r}; "
+                                      "make the axis values differ in more than punctuation")
+                if not _selected(study, point, setup.name):
+                    continue
+                setups.setdefault(setup.name, setup)
+                sizes = (point.of(study.axes, False)["n_train"],) if train_axis else study.n_train
+                for method in study.methods:
+                    for n in sizes:
+                        cfg = _train_config(study, method, n, seed, point)
+                        name = _run_name(method, n, seed, cfg, point, study)
+                        runs.append(Run(point, setup.name, method, n, seed, cfg,
+                                        f"runs/{setup.name}/{name}"))
+    if not runs:
+        raise ProcamError(f"--only {','.join(study.only)}: matches no point number or setup of "
+                          f"{study.path} (points 0-{len(points) - 1}; setups e.g. {next(iter(origin))})")
+    return Plan(points, setups, tuple(runs))
+
+
+def study_record(study: Study, plan: Plan, kind: str = "study") -> dict:
+    """The contents of ``study.json`` (without ``versions`` and ``created``)."""
+    sizes = sorted({r.n_train for r in plan.runs})
+    return {"name": study.name, "question": study.question, "kind": kind, "base": study.base,
+            "axes": [{"key": a.key, "values": list(a.values), "label": a.label, "unit": a.unit}
+                     for a in study.axes],
+            "methods": list(study.methods), "seeds": list(study.seeds), "n_train": sizes,
+            "n_test": study.n_test, "size": list(study.size), "profile": study.profile,
+            "render_seeds": study.render_seeds, "setup_values": study.setup, "options": study.options,
+            "overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in study.overrides.items()},
+            "study_file": str(study.path.resolve()),
+            "setups": {name: f"data/{name}/setup.toml" for name in plan.setups}}
+
+
+def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> dict:
+    """Run a study into the folder ``out`` (resumable) and write ``study.json`` and ``results.csv``.
+
+    Every job runs whatever the others do: a setup that cannot be rendered or a run that fails
+    gives rows of status ``failed`` with the error; an interruption stops the study (run it
+    again to go on).
+
+    Parameters
+    ----------
+    study : Study
+        The study (:func:`load_study`, :func:`with_overrides`).
+    out : Path
+        The study folder: ``data/<setup>/`` (datasets), ``runs/<setup>/<run>/`` (with
+        ``closed_loop/img_000{1..4}.png``), ``baselines/<setup>.json``, ``study.json``,
+        ``results.csv``.
+    executor : LocalExecutor or RayExecutor, optional
+        Where the jobs run (default: in this process, one after the other).
+    progress : bool
+        Progress bars (with the local executor).
+
+    Returns
+    -------
+    dict
+        ``study`` and ``results`` (paths), ``jobs`` (runs), ``trained``, ``reused`` and ``failed``
+        (runs), ``setups`` (rendered or found finished).
+    """
+    out = Path(out)
+    executor = executor or LocalExecutor()
+    plan = expand(study)
+    out.mkdir(parents=True, exist_ok=True)
+    record = study_record(study, plan)
+    write_study_record(out, {**record, "executor": executor.name})
+    data_root = out / "data"
+    spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size)
+    gpus = executor.gpus()
+    renders = [RenderJob(data_root, s, spec, progress) for s in plan.setups.values()]
+    rendered = dict(zip(plan.setups, executor.run(tasks(render, renders, gpus))))
+    ready = [name for name, done in rendered.items() if done["ok"]]
+
+    unique: dict[str, FitJob] = {}
+    for r in plan.runs:
+        if rendered[r.setup]["ok"]:
+            unique.setdefault(r.run, FitJob(data_root / r.setup, r.cfg, out / r.run, progress=progress))
+    bases = [BaselineJob(data_root / name, study.n_test, record=out / "baselines" / f"{name}.json")
+             for name in ready]
+    done = executor.run(tasks(fit, list(unique.values()), gpus) + tasks(baselines, bases, gpus))
+    fitted = {run: {"run": str(job.run_dir), **d} for (run, job), d in zip(unique.items(), done)}
+    base = dict(zip(ready, done[len(unique):]))
+
+    rows = []
+    for r in plan.runs:
+        record_of = fitted.get(r.run) or {"ok": False, "run": str(out / r.run),
+                                          "error": f"render of {r.setup} failed: {rendered[r.setup]['error']}"}
+        rows.append({"point": r.point.index, **{a.key: v for a, v in zip(study.axes, r.point.values)},
+                     "setup": r.setup, "method": r.method, "n_train": r.n_train, "seed": r.seed,
+                     **result_row(record_of, base.get(r.setup), out)})
+    results = write_results(out, [a.key for a in study.axes], rows)
+    trained = sum(1 for d in fitted.values() if d["ok"] and d["trained"])
+    return {"study": out / "study.json", "results": results, "jobs": len(fitted), "trained": trained,
+            "reused": sum(1 for d in fitted.values() if d["ok"]) - trained,
+            "failed": sum(1 for row in rows if row["status"] == "failed"),
+            "setups": len(ready)}
+
+
+def study_file(spec: str) -> Path:
+    """The study file a command line names: an existing path, else a study shipped in
+    ``scenes/studies/`` by name (``projector-defocus``, with or without ``.toml``).
+
+    Raises
+    ------
+    ProcamError
+        If neither exists (the message lists the shipped studies).
+    """
+    path = Path(spec)
+    if path.exists():
+        return path
+    from sim.setup import scene_path
+
+    folder = scene_path("default").parent / "studies"
+    candidate = folder / (spec if spec.endswith(".toml") else f"{spec}.toml")
+    if re.fullmatch(r"[A-Za-z0-9_.-]+", spec) and candidate.is_file():
+        return candidate
+    shipped = sorted(p.stem for p in folder.glob("*.toml"))
+    raise ProcamError(f"{spec}: no such study file, and not a shipped study; shipped: "
+                      f"{', '.join(shipped) or 'none'}")
+

@@ -1,0 +1,169 @@
+"""Where the jobs of a study or benchmark run: in this process (``local``, optionally a pool of
+worker processes) or as Ray tasks (``ray``: this machine's CPUs and GPUs, or a cluster).
+
+A job is a module-level function and one picklable argument (a frozen dataclass of paths and
+configurations); it reads and writes only the files under the study folder and the dataset root,
+so every executor gives the same files and the same numbers, and a job already finished is reused
+whoever ran it. :func:`attempt` runs one job and turns its failure into a record, so one failing
+job never stops the others.
+"""
+from __future__ import annotations
+
+import os
+import traceback
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
+
+from sim.errors import ProcamError
+
+EXECUTORS = ("local", "ray")
+"""Names accepted by :func:`make_executor` (and ``--executor``)."""
+
+
+@dataclass(frozen=True)
+class Task:
+    """One job and what it needs.
+
+    Attributes
+    ----------
+    fn : callable
+        A module-level function (pickled by reference) taking ``job``.
+    job : object
+        Its picklable argument.
+    num_cpus : float
+        CPU cores the job uses (a Ray resource request).
+    num_gpus : float
+        GPUs the job uses (0 on the CPU).
+    """
+
+    fn: Callable
+    job: object
+    num_cpus: float = 1.0
+    num_gpus: float = 0.0
+
+
+def attempt(fn: Callable, job) -> dict:
+    """``{"ok": True, **fn(job)}``, or ``{"ok": False, "error": …, "traceback": …}`` if it raises.
+
+    An interruption (:class:`KeyboardInterrupt`, or the training loop's own
+    :class:`~compensation.training.loop.TrainingInterrupted`) is not a job's failure: it stops the
+    whole run (what is finished is kept).
+
+    >>> attempt(int, "3x")["error"]
+    "ValueError: invalid literal for int() with base 10: '3x'"
+    """
+    from compensation.training.loop import TrainingInterrupted
+
+    try:
+        return {"ok": True, **fn(job)}
+    except TrainingInterrupted:
+        raise
+    except Exception as exc:  # one failure must not lose the others' results
+        return {"ok": False, "error": f"{type(exc).__name__}: {exc}",
+                "traceback": traceback.format_exc(limit=4)}
+
+
+class LocalExecutor:
+    """Jobs in this process, in order (``workers`` 1), or in a pool of ``workers`` processes.
+
+    Parameters
+    ----------
+    workers : int
+        Worker processes (>= 1); 1 runs each job here, one after the other.
+    """
+
+    name = "local"
+
+    def __init__(self, workers: int = 1):
+        if not isinstance(workers, int) or workers < 1:
+            raise ProcamError(f"--processes {workers!r}: expected a positive integer")
+        self.workers = workers
+
+    def run(self, tasks: Sequence[Task]) -> list[dict]:
+        """The :func:`attempt` record of every task, in the order given."""
+        if self.workers == 1 or len(tasks) < 2:
+            return [attempt(t.fn, t.job) for t in tasks]
+        # spawn: a fresh interpreter per worker (no forked torch or Mitsuba thread state)
+        with ProcessPoolExecutor(min(self.workers, len(tasks)), mp_context=get_context("spawn")) as pool:
+            return list(pool.map(attempt, [t.fn for t in tasks], [t.job for t in tasks]))
+
+    def gpus(self) -> float:
+        """GPUs visible to the jobs."""
+        import torch
+
+        return float(torch.cuda.device_count())
+
+
+class RayExecutor:
+    """Each job one Ray task declaring its ``num_cpus`` and ``num_gpus``.
+
+    Connects to the cluster at ``address`` (``"auto"``: the one ``ray start --head`` started on
+    this machine; ``ray://host:10001``: a remote one) or, without an address, to the instance
+    already initialised in this process, else starts a local one on this machine's cores and GPUs.
+    The jobs share data through the filesystem: on a cluster the study folder (and the dataset
+    root) must be on a filesystem every node mounts at the same path, with procam installed in
+    the same version on every node.
+    """
+
+    name = "ray"
+
+    def __init__(self, address: str | None = None):
+        try:
+            import ray
+        except ImportError:
+            raise ProcamError("--executor ray: Ray is not installed; install procam's extra: "
+                              "pip install 'procam[ray]'") from None
+        self.ray = ray
+        if not ray.is_initialized():
+            # the workers import procam from the same place as this process
+            path = os.pathsep.join(p for p in (os.getcwd(), os.environ.get("PYTHONPATH", "")) if p)
+            env = {"PYTHONPATH": path, "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY", "PASSIVE")}
+            if "PROCAM_VARIANT" in os.environ:  # the Mitsuba variant this process was told to use
+                env["PROCAM_VARIANT"] = os.environ["PROCAM_VARIANT"]
+            try:
+                ray.init(address=address, include_dashboard=False, log_to_driver=False,
+                         runtime_env={"env_vars": env})
+            except (ConnectionError, RuntimeError, ValueError) as exc:
+                raise ProcamError(f"--address {address}: cannot connect to a Ray cluster ({exc})") from None
+
+    def run(self, tasks: Sequence[Task]) -> list[dict]:
+        """The :func:`attempt` record of every task, in the order given."""
+        remote = self.ray.remote(attempt)
+        refs = [remote.options(num_cpus=t.num_cpus, num_gpus=t.num_gpus).remote(t.fn, t.job)
+                for t in tasks]
+        return [self._result(ref) for ref in refs]
+
+    def _result(self, ref) -> dict:
+        """A task's record; a task lost by Ray (its worker or node died) is a failed job."""
+        try:
+            return self.ray.get(ref)
+        except self.ray.exceptions.RayError as exc:
+            return {"ok": False, "error": f"{type(exc).__name__}: {exc}".strip(), "traceback": ""}
+
+    def gpus(self) -> float:
+        """GPUs of the cluster."""
+        return float(self.ray.cluster_resources().get("GPU", 0))
+
+
+def make_executor(name: str = "local", address: str | None = None,
+                  workers: int = 1) -> LocalExecutor | RayExecutor:
+    """The executor called ``name`` (:data:`EXECUTORS`).
+
+    Raises
+    ------
+    ProcamError
+        If the name is unknown, ``address`` is given to the local executor, ``workers`` (more
+        than 1, ``--processes``) to Ray,
+        or Ray is missing or unreachable.
+    """
+    if name not in EXECUTORS:
+        raise ProcamError(f"--executor {name!r}: expected one of {', '.join(EXECUTORS)}")
+    if name == "local":
+        if address is not None:
+            raise ProcamError("--address: only with --executor ray")
+        return LocalExecutor(workers)
+    if workers != 1:
+        raise ProcamError("--processes: only with --executor local (Ray places its tasks itself)")
+    return RayExecutor(address)

@@ -1,0 +1,92 @@
+"""Executors: a failing job is a record, not an abort; a tiny bench on a local Ray instance (2 CPUs)
+gives the local executor's numbers, table for table."""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import pytest
+
+from compensation.evaluation.bench import BenchConfig, run_bench
+from compensation.executors import LocalExecutor, Task, attempt, make_executor
+from sim.errors import ProcamError
+from sim.setup import load_suite
+
+BASE = """
+name = "base"
+[surface]
+texture = "noise"
+texture_resolution = 64
+[projector]
+resolution = [32, 32]
+[camera]
+resolution = [32, 32]
+[render]
+fidelity = "direct"
+spp = 4
+ambient_spp = 16
+"""
+SUITE = """
+base = "base.toml"
+[[setup]]
+name = "s1"
+surface = { texture_seed = 1 }
+[[setup]]
+name = "s2"
+surface = { texture = "stripes", texture_seed = 2 }
+ambient = { radiance = [0.08, 0.08, 0.08] }
+"""
+TIMINGS = {"train s", "infer ms/frame", "fit_s", "infer_ms"}
+"""Columns holding wall-clock times (the only ones allowed to differ)."""
+
+
+def test_attempt_and_local_executor():
+    failed = attempt(int, "x")
+    assert not failed["ok"] and "int(" in failed["error"] and "Traceback" in failed["traceback"]
+    done = LocalExecutor().run([Task(dict.fromkeys, ("a", "b")), Task(int, "x")])
+    assert done[0] == {"ok": True, "a": None, "b": None}
+    assert not done[1]["ok"] and done[1]["error"].startswith("ValueError: invalid literal")
+
+
+def test_executor_options_are_checked():
+    with pytest.raises(ProcamError, match="expected one of local, ray"):
+        make_executor("dask")
+    with pytest.raises(ProcamError, match="--address: only with --executor ray"):
+        make_executor("local", address="auto")
+    with pytest.raises(ProcamError, match="--processes: only with --executor local"):
+        make_executor("ray", workers=2)
+    with pytest.raises(ProcamError, match="--processes 0"):
+        make_executor("local", workers=0)
+
+
+def _table(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return [{k: v for k, v in row.items() if k not in TIMINGS} for row in csv.DictReader(f)]
+
+
+def test_ray_bench_equals_local(tmp_path):
+    ray = pytest.importorskip("ray")
+    from compensation.executors import RayExecutor
+
+    (tmp_path / "base.toml").write_text(BASE)
+    (tmp_path / "suite.toml").write_text(SUITE)
+    suite = load_suite(tmp_path / "suite.toml")
+    cfg = BenchConfig(methods=("tps", "nayar"), sizes=(4,), tables=("1",), size=32, n_test=2,
+                      closed_loop=True)
+    run_bench(suite, tmp_path / "local", cfg, progress=False, executor=LocalExecutor())
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        executor = RayExecutor()  # joins the instance started here
+        run_bench(suite, tmp_path / "ray", cfg, progress=False, executor=executor)
+        assert ray.cluster_resources()["CPU"] == 2
+        stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / "ray").rglob("metrics.json")}
+        run_bench(suite, tmp_path / "ray", cfg, progress=False, executor=executor)  # a new driver's run
+        assert {p: p.stat().st_mtime_ns for p in (tmp_path / "ray").rglob("metrics.json")} == stamps
+    finally:
+        ray.shutdown()
+    for name in ("table1.csv", "per_setup.csv", "results.csv"):
+        local, remote = _table(tmp_path / "local" / name), _table(tmp_path / "ray" / name)
+        assert local == remote and len(local) >= 4, name
+    rows = _table(tmp_path / "ray" / "results.csv")
+    assert {r["status"] for r in rows} == {"ok"} and all(r["cl_psnr"] for r in rows)
+    assert all((tmp_path / "ray" / r["run"] / "closed_loop" / "img_0002.png").exists() for r in rows)

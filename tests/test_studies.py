@@ -1,0 +1,260 @@
+"""`procam study`: every shipped study loads and expands into valid setups and runs; a tiny study
+end to end writes study.json and results.csv with the contract's columns and sensible values,
+resumes without fitting again, and keeps a failing job as a row."""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import shutil
+import tomllib
+from pathlib import Path
+
+import imageio.v3 as iio
+import pytest
+
+from compensation.cli import main
+from compensation.evaluation.jobs import RESULT_COLUMNS, STATUSES, run_status
+from compensation.evaluation.studies import expand, load_study, run_study, with_overrides
+from compensation.methods import METHODS
+from sim.errors import ProcamError
+from sim.setup.schema import SECTIONS
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = sorted((ROOT / "scenes" / "studies").glob("*.toml"))
+BASE = """
+name = "base"
+[surface]
+texture = "noise"
+texture_resolution = 64
+[projector]
+resolution = [32, 32]
+[camera]
+resolution = [32, 32]
+[render]
+fidelity = "direct"
+spp = 4
+ambient_spp = 16
+"""
+STUDY = """
+# Does more ambient light cost the per-pixel methods?
+name = "tiny"
+question = "ambient light vs per-pixel methods"
+base = "base.toml"
+methods = ["tps", "nayar"]
+seeds = [0]
+n_train = 8
+n_test = 4
+size = 32
+
+[[axis]]
+key = "ambient.radiance"
+values = [0.02, 0.1]
+label = "ambient radiance"
+unit = ""
+"""
+SURROGATE_MARGIN_DB = 3.0
+"""Surrogate PSNR of tps and nayar above uncompensated, per point (measured +3.7 to +5.4 dB)."""
+CLOSED_LOOP_MARGIN_DB = 1.0
+"""Closed-loop PSNR of tps, nayar and the oracle above y projected as is, per point (measured +1.7 to
++2.2 dB: most of the noise texture's dark pixels cannot reach the desired images)."""
+REACHABLE_MARGIN_DB = 6.0
+"""The same on the reachable pixels only (measured +9.6 to +13.3 dB)."""
+
+
+def _rows(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
+def test_shipped_studies_load_and_expand(path):
+    text = path.read_text()
+    assert text.startswith("# procam study") and "Question:" in text
+    data = tomllib.loads(text)
+    if any(a["key"].split(".")[0] not in SECTIONS for a in data["axis"] if "." in a["key"]):
+        pytest.skip(f"{path.name}: its setup section is not in this build")
+    study = load_study(path)
+    assert study.question and study.name == path.stem
+    plan = expand(study)
+    n_points = math.prod(len(a.values) for a in study.axes)
+    assert len(plan.points) == n_points
+    per_point = len(study.methods) * len(study.seeds) * (1 if any(a.key == "n_train" for a in study.axes)
+                                                        else len(study.n_train))
+    assert len(plan.runs) == n_points * per_point
+    setup_axes = [a for a in study.axes if a.on_setup]
+    assert len(plan.setups) == (math.prod(len(a.values) for a in setup_axes) if setup_axes else 1)
+    for axis in setup_axes:  # every value reached its setup (a number broadcast to an RGB triple)
+        section, key = axis.key.split(".")
+        seen = {getattr(getattr(s, section), key) for s in plan.setups.values()}
+        assert len(seen) == len(axis.values)
+    assert len({r.run for r in plan.runs}) <= len(plan.runs)
+
+
+def test_overrides_and_only():
+    study = load_study(ROOT / "scenes" / "studies" / "train-size.toml")
+    small = with_overrides(study, size=(32, 32), n_train=(8, 16), n_test=4, iters=5, seeds=1,
+                           methods=("tps", "compennet"))
+    plan = expand(small)
+    assert [p.values for p in plan.points] == [(8,), (16,)]
+    assert {(r.method, r.n_train, r.seed) for r in plan.runs} == {
+        (m, n, 0) for m in ("tps", "compennet") for n in (8, 16)}
+    assert all(r.cfg.n_test == 4 for r in plan.runs)
+    assert {r.cfg.options.iters for r in plan.runs if r.method == "compennet"} == {5}
+    assert small.overrides["seeds"] == 1 and small.size == (32, 32)
+    only = expand(with_overrides(load_study(ROOT / "scenes" / "studies" / "projector-defocus.toml"),
+                                 only=("1", "*aperture-0p08")))
+    assert sorted({r.point.index for r in only.runs}) == [1, 4]
+    with pytest.raises(ProcamError, match="--only 9: matches no point"):
+        expand(with_overrides(study, only=("9",)))
+
+
+def test_training_axis_shares_runs_of_methods_without_the_option():
+    plan = expand(load_study(ROOT / "scenes" / "studies" / "iterations.toml"))
+    tps = {r.run for r in plan.runs if r.method == "tps"}
+    assert tps == {f"runs/default/tps-n125-seed{s}" for s in (0, 1, 2)}  # one fit for all 6 points
+    assert "runs/default/compennet-n125-seed1-iters250" in {r.run for r in plan.runs}
+
+
+@pytest.mark.parametrize("axis, message", [
+    ('key = "projector.aperture"\nvalues = [0.0, -0.01]',
+     r"study\.toml \(point 1: projector\.aperture = -0\.01\): projector\.aperture = -0\.01: expected a number >= 0"),
+    ('key = "projector.apperture"\nvalues = [0.0]', r"study\.toml.*projector\.apperture: unknown key"),
+    ('key = "seed"\nvalues = [1, 2]', r"study\.toml: axis\[0\]\.key = 'seed': not a study axis"),
+    ('key = "smoothing"\nvalues = [0.1]', r"study\.toml: axis 'smoothing': not an option of any method"),
+])
+def test_bad_axes_are_named(tmp_path, capsys, axis, message):
+    (tmp_path / "base.toml").write_text(BASE)
+    (tmp_path / "study.toml").write_text(
+        'base = "base.toml"\nmethods = ["nayar"]\n[[axis]]\n' + axis + "\n")
+    with pytest.raises(ProcamError, match=message):
+        expand(load_study(tmp_path / "study.toml"))
+    assert main(["study", str(tmp_path / "study.toml"), "--out", str(tmp_path / "out")]) == 2
+    assert "Traceback" not in capsys.readouterr().err
+    assert not (tmp_path / "out" / "data").exists()  # nothing rendered
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("study")
+    (tmp / "base.toml").write_text(BASE)
+    (tmp / "tiny.toml").write_text(STUDY)
+    assert main(["study", str(tmp / "tiny.toml"), "--out", str(tmp / "out"), "--quiet"]) == 0
+    return tmp
+
+
+def test_study_folder(tiny):
+    out = tiny / "out"
+    record = json.loads((out / "study.json").read_text())
+    assert {"name", "question", "kind", "base", "axes", "methods", "seeds", "n_train", "n_test", "size",
+            "overrides", "versions", "setups", "created"} <= set(record)
+    assert record["kind"] == "study" and record["name"] == "tiny"
+    assert record["axes"] == [{"key": "ambient.radiance", "values": [0.02, 0.1], "label": "ambient radiance",
+                               "unit": ""}]
+    assert set(record["versions"]) == {"procam", "torch", "mitsuba", "python"}
+    assert record["size"] == [32, 32] and record["n_train"] == [8] and record["seeds"] == [0]
+    for name, path in record["setups"].items():
+        setup = tomllib.loads((out / path).read_text())
+        value = 0.02 if name.endswith("0p02") else 0.1
+        assert setup["ambient"]["radiance"] == [value] * 3  # the scalar applies to R, G and B
+    rows = _rows(out / "results.csv")
+    with open(out / "results.csv", newline="") as f:
+        assert next(csv.reader(f)) == ["point", "ambient.radiance", *RESULT_COLUMNS]
+    assert [(r["point"], r["ambient.radiance"], r["method"], r["n_train"], r["seed"]) for r in rows] == [
+        (p, v, m, "8", "0") for p, v in (("0", "0.02"), ("1", "0.1")) for m in ("tps", "nayar")]
+    for r in rows:
+        assert r["status"] == "ok" and r["error"] == "", r
+        for key in ("psnr", "rmse", "ssim", "deltae", "cl_psnr", "cl_ssim", "cl_deltae", "unc_psnr",
+                    "cl_unc_psnr", "oracle_psnr", "fit_s", "infer_ms"):
+            assert math.isfinite(float(r[key])), (key, r)
+        assert float(r["psnr"]) > float(r["unc_psnr"]) + SURROGATE_MARGIN_DB, r
+        assert float(r["cl_psnr"]) > float(r["cl_unc_psnr"]) + CLOSED_LOOP_MARGIN_DB, r
+        assert float(r["oracle_psnr"]) > float(r["cl_unc_psnr"]) + CLOSED_LOOP_MARGIN_DB, r
+        assert float(r["cl_psnr_reachable"]) > float(r["cl_unc_psnr_reachable"]) + REACHABLE_MARGIN_DB, r
+        assert 0 < float(r["cl_ssim"]) <= 1 and float(r["cl_deltae"]) > 0
+        run = out / r["run"]
+        assert r["run"] == f"runs/{r['setup']}/{r['method']}-n8-seed0"
+        metrics = json.loads((run / "metrics.json").read_text())
+        assert float(r["cl_psnr"]) == pytest.approx(metrics["closed_loop"]["psnr"], rel=1e-5)
+        captures = sorted(p.name for p in (run / "closed_loop").iterdir())
+        assert captures == [f"img_{i:04d}.png" for i in range(1, 5)]
+        assert iio.imread(run / "closed_loop" / "img_0001.png").shape == (32, 32, 3)
+    # the axis reached the renders: the capture of the black frame is lit by the ambient light alone
+    black = {r["ambient.radiance"]: iio.imread(out / "data" / r["setup"] / "cam" / "warp" / "ref" / "img_0001.png")
+             for r in rows}
+    # 5x the radiance, sRGB-encoded (the projector's black level adds to both): measured 2.9x
+    assert black["0.1"].mean() > 2 * black["0.02"].mean()
+
+
+def test_resume_fits_nothing_and_a_failure_is_a_row(tiny, monkeypatch, capsys):
+    out = tiny / "out"
+    args = ["study", str(tiny / "tiny.toml"), "--out", str(out), "--quiet"]
+    stamps = {p: p.stat().st_mtime_ns for p in out.rglob("metrics.json")}
+    before = _rows(out / "results.csv")
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "4 runs (0 trained, 4 reused)" in capsys.readouterr().out
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("metrics.json")} == stamps
+    after = _rows(out / "results.csv")
+    drop = ("fit_s", "infer_ms")  # the reused runs keep their own timings: the whole rows are equal
+    assert before == after and all(r[k] for r in after for k in drop)
+
+    def broken(self, data, cfg, progress=True, checkpoint=None):
+        raise RuntimeError("simulated crash")
+
+    monkeypatch.setattr(METHODS["nayar"], "fit", broken)
+    failing = next(p.parent for p in stamps if p.parent.name == "nayar-n8-seed0"
+                   and p.parent.parent.name.endswith("0p1"))
+    shutil.rmtree(failing)
+    assert main(args) == 0
+    assert "3 reused), 1 failed rows" in capsys.readouterr().out
+    rows = _rows(out / "results.csv")
+    assert [r["status"] for r in rows] == ["ok", "ok", "ok", "failed"]
+    assert set(STATUSES) >= {r["status"] for r in rows}
+    failed = rows[-1]
+    assert "RuntimeError: simulated crash" in failed["error"] and failed["psnr"] == ""
+    assert failed["unc_psnr"] and failed["oracle_psnr"]  # the setup's baselines are still there
+    assert failed["run"] == f"runs/{failing.parent.name}/nayar-n8-seed0"
+
+
+def test_run_status(tmp_path):
+    ok = {"psnr": 20.0, "rmse": 0.1, "ssim": 0.7, "deltaE": 5.0, "final_loss": 0.1,
+          "closed_loop": {"psnr": 18.0, "rmse": 0.12, "ssim": 0.6, "deltaE": 6.0}}
+    assert run_status(ok, tmp_path) == ("ok", "")
+    assert run_status({**ok, "ssim": float("nan")}, tmp_path) == ("nan", "not finite: ssim")
+    assert run_status({**ok, "closed_loop": {**ok["closed_loop"], "psnr": float("nan")}},
+                      tmp_path) == ("nan", "not finite: cl_psnr")
+    assert run_status({**ok, "final_loss": float("inf")}, tmp_path)[0] == "diverged"
+    (tmp_path / "loss.csv").write_text("iteration,loss,lr\n1,0.2,0.001\n2,0.25,0.001\n")
+    assert run_status(ok, tmp_path) == ("ok", "")  # a loss up by a quarter: noise, not divergence
+    (tmp_path / "loss.csv").write_text("iteration,loss,lr\n1,0.2,0.001\n2,0.9,0.001\n")
+    assert run_status(ok, tmp_path) == ("diverged", "training loss grew above 1.5x its first value")
+
+
+def test_a_setup_that_cannot_render_fails_its_rows_only(tiny, monkeypatch, capsys):
+    import compensation.evaluation.jobs as jobs
+
+    real = jobs.write_setup
+
+    def refuse(root, setup, *args, **kwargs):
+        if setup.name.endswith("0p1"):
+            raise ProcamError("simulated refusal")
+        return real(root, setup, *args, **kwargs)
+
+    monkeypatch.setattr(jobs, "write_setup", refuse)
+    assert main(["study", str(tiny / "tiny.toml"), "--out", str(tiny / "out"), "--quiet"]) == 0
+    rows = _rows(tiny / "out" / "results.csv")
+    assert [r["status"] for r in rows] == ["ok", "ok", "failed", "failed"]
+    assert all(r["error"] == "render of base__ambient-radiance-0p1 failed: ProcamError: simulated refusal"
+               for r in rows[2:])
+    assert "2 runs (0 trained, 2 reused), 2 failed rows, 1 setups" in capsys.readouterr().out
+
+
+def test_render_seeds_give_each_seed_its_dataset(tmp_path):
+    (tmp_path / "base.toml").write_text(BASE.replace("[render]", "[render]\nseed = 5"))
+    (tmp_path / "s.toml").write_text(STUDY.replace("seeds = [0]", "seeds = [0, 2]\nrender_seeds = true"))
+    plan = expand(load_study(tmp_path / "s.toml"))
+    assert {name: s.render.seed for name, s in plan.setups.items()} == {
+        f"base__ambient-radiance-{v}__seed{k}": 5 + k for v in ("0p02", "0p1") for k in (0, 2)}
+    assert all(r.setup.endswith(f"__seed{r.seed}") and r.cfg.seed == r.seed for r in plan.runs)
+    assert len(plan.runs) == 2 * 2 * 2  # points x methods x seeds
