@@ -25,6 +25,7 @@ import numpy as np
 
 from compensation.data import frames_root, surface_path
 from compensation.evaluation import charts as ch
+from compensation.evaluation.closed_loop import CAPTURES_DIR
 from compensation.evaluation.summary import (BREAK_COLUMNS, FAILURE_COLUMNS, _finite, _fmt, _order_key,
                                              axis_keys, breakpoints, failures, read_results, read_study,
                                              summarize, write_summaries)
@@ -40,8 +41,6 @@ CELL = 160
 """Display size of a grid cell's image (pixels, its longer side); the zoomed patches go below it."""
 PATCH_COLOURS = ((255, 200, 0), (0, 190, 255))
 """Outline colours of the two zoomed patches (RGB)."""
-CAPTURES = "closed_loop"
-"""Folder of a run holding the closed-loop captures ``img_0001.png`` … of the first test images."""
 
 
 # --------------------------------------------------------------------------- reading a folder
@@ -239,7 +238,7 @@ def figure_grid(folder: Path, rows: list[dict], point: int, stem: Path) -> tuple
     runs = {}
     for r in sorted(at, key=lambda r: (-r["n_train"], r["seed"])):
         if r["status"] == "ok" and r.get("run") and r["method"] not in runs:
-            runs[r["method"]] = (folder / r["run"] / CAPTURES, r["n_train"])
+            runs[r["method"]] = (folder / r["run"] / CAPTURES_DIR, r["n_train"])
     indices = [i for i in range(1, N_ROWS + 1) if (desired_dir / image_name(i)).is_file()
                and (setup_dir / "cam" / "warp" / "test" / image_name(i)).is_file()]
     if not indices:

@@ -19,12 +19,15 @@ from __future__ import annotations
 import csv
 import io
 import math
+import platform
+from datetime import datetime, timezone
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
 
 from sim.errors import ProcamError
-from sim.io import atomic_write, read_json
+from sim.io import atomic_write, read_json, write_json
 
 METRICS = ("psnr", "rmse", "ssim", "deltae")
 """Surrogate metrics (π†(x̃) against x on held-out pairs); ``cl_``, ``unc_`` prefixed: the same in
@@ -126,19 +129,25 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
     return rows
 
 
-def _fmt(value) -> str:
+def _fmt(value, digits: int | None = 6) -> str:
+    """A CSV cell: NaN empty, a float to ``digits`` significant digits (None: exact, the shortest
+    text that reads back as the same float).
+
+    >>> _fmt(float("nan")), _fmt(13.85700900195572), _fmt(13.85700900195572, None), _fmt("a")
+    ('', '13.857', '13.85700900195572', 'a')
+    """
     if isinstance(value, float):
-        return "" if math.isnan(value) else f"{value:.6g}"
+        return "" if math.isnan(value) else repr(value) if digits is None else f"{value:.{digits}g}"
     return str(value)
 
 
-def write_csv(path: Path, columns: list[str], rows: list[dict]) -> Path:
-    """Write ``rows`` (dicts) under ``columns`` atomically; NaN as an empty cell, floats to 6
-    significant digits."""
+def write_csv(path: Path, columns: list[str], rows: list[dict], digits: int | None = 6) -> Path:
+    """Write ``rows`` (dicts) under ``columns`` atomically; NaN as an empty cell, floats to
+    ``digits`` significant digits (None: exact)."""
     text = io.StringIO(newline="")
     w = csv.writer(text)
     w.writerow(columns)
-    w.writerows([[_fmt(r.get(c, "")) for c in columns] for r in rows])
+    w.writerows([[_fmt(r.get(c, ""), digits) for c in columns] for r in rows])
     atomic_write(path, text.getvalue())
     return Path(path)
 
@@ -360,3 +369,37 @@ def write_summaries(folder: Path, study: dict, rows: list[dict]) -> dict[str, Pa
                                      breakpoints(summary, study)),
             "failures": write_csv(folder / "failures.csv",
                                   [FAILURE_COLUMNS[0], *axes, *FAILURE_COLUMNS[1:]], failures(rows, axes))}
+
+
+def versions() -> dict[str, str]:
+    """Versions of procam, torch, mitsuba and Python for ``study.json`` (``unknown`` where a
+    package is not installed as a distribution)."""
+    found = {}
+    for name in ("procam", "torch", "mitsuba"):
+        try:
+            found[name] = version(name)
+        except PackageNotFoundError:
+            found[name] = "unknown"
+    return {**found, "python": platform.python_version()}
+
+
+def write_study(folder: Path, study: dict, rows: list[dict]) -> dict[str, Path]:
+    """Write ``study.json`` (``study`` with ``versions`` and ``created`` filled in where absent)
+    and ``results.csv`` (``rows`` under the point, the axis columns and :data:`RESULT_COLUMNS`;
+    a missing value is an empty cell, floats exact), then the summaries of :func:`write_summaries`.
+
+    Returns
+    -------
+    dict
+        Paths by name: ``study``, ``results``, ``summary``, ``breakpoints``, ``failures``.
+    """
+    folder = Path(folder)
+    study = {"versions": versions(), "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+             **study}
+    write_json(folder / "study.json", study)
+    axes = axis_keys(study)
+    columns = [RESULT_COLUMNS[0], *axes, *RESULT_COLUMNS[1:]]
+    files = {"study": folder / "study.json",
+             "results": write_csv(folder / "results.csv", columns,
+                                  [{c: r.get(c, float("nan")) for c in columns} for r in rows], None)}
+    return {**files, **write_summaries(folder, study, rows)}
