@@ -245,3 +245,22 @@ def test_real_bench_folder(tmp_path, capsys):
     assert set(summary) == {"tps", "nayar"}
     assert float(summary["tps"]["psnr_mean"]) > float(summary["tps"]["unc_psnr_mean"]) + 5
     assert _csv(out / "breakpoints.csv") == []
+
+
+def test_training_size_factor():
+    """A factor that sets n_train (a training-size study): one line per method across sizes, and
+    the break points are found along it (not one point per size)."""
+    from compensation.evaluation.charts import study_lines
+    from compensation.evaluation.summary import breakpoints
+
+    key = "train.n_train"
+    cl = {"tps": [20.0, 22.0, 24.0], "compennet": [15.0, 20.0, 25.0]}
+    rows = [{"point": p, key: float(n), "setup": "s", "method": m, "n_train": n, "seed": 0, "status": "ok",
+             "cl_psnr": v[p], "cl_unc_psnr": 17.0} for m, v in cl.items() for p, n in enumerate((8, 16, 32))]
+    study = {"axes": [{"key": key, "values": [8, 16, 32]}]}
+    summary = summarize(rows, [key])
+    assert set(study_lines(summary, key, [8, 16, 32], "cl_psnr")) == {("tps", ""), ("compennet", "")}
+    found = {b["method"]: b for b in breakpoints(summary, study)}
+    assert (found["compennet"]["break_value"], found["compennet"]["kind"]) == (8.0, "gain")
+    assert (found["tps"]["break_value"], found["tps"]["other"]) == (32.0, "compennet")
+    assert found["tps"]["n_train"] == ""

@@ -7,7 +7,9 @@ Table 3 (training losses ℓ1, ℓ2, SSIM, ℓ1+SSIM), as Markdown and CSV, plus
 Without a suite, the setups are every folder holding ``cam/warp`` under the dataset root
 (:func:`found_setups`, e.g. the official benchmark's ``light2/pos1/curves``) and nothing is rendered.
 With ``closed_loop`` every run on a simulated setup (one with ``setup.toml``) is also scored by
-projecting its compensation back through the setup, next to the iterative-refinement oracle.
+projecting its compensation back through the setup, next to the iterative-refinement oracle, and
+keeps the captures of the first test images in ``runs/<setup>/<run>/closed_loop/`` (for
+``procam report``).
 
 Each run also leaves the official code's outputs, in the official layout under
 ``OUT/official/<setup>`` (never inside the dataset, which may be read-only)::
@@ -345,13 +347,14 @@ def _setup_baselines(setup_dir: Path, n_test: int,
 
 
 def _add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:
-    from compensation.evaluation.closed_loop import closed_loop, simulator_for
+    from compensation.evaluation.closed_loop import closed_loop, simulator_for, write_captures
 
     method, _ = load_run(run_dir)
     data = load_setup_data(setup_dir, n_train=1, n_test=n_test)
     t0 = time.perf_counter()
-    scores = closed_loop(method, data, simulator_for(setup_dir))
+    scores, captured = closed_loop(method, data, simulator_for(setup_dir), return_captures=True)
     scores["seconds"] = round(time.perf_counter() - t0, 3)
+    write_captures(run_dir, captured)
     metrics = read_json(run_dir / "metrics.json", "run metrics")
     metrics["closed_loop"] = scores
     write_json(run_dir / "metrics.json", metrics)

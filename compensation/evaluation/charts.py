@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from compensation.evaluation.summary import _finite, _order_key, closed_loop_gain
+from compensation.evaluation.summary import _finite, _order_key, closed_loop_gain, n_train_follows
 from sim.io import atomic_write
 
 PANELS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("deltae", "ΔE (CIEDE2000)"))
@@ -55,6 +55,7 @@ def axis_positions(values: list, listed: list) -> tuple[dict, bool]:
 def study_lines(summary: list[dict], key: str, listed: list, score: str) -> dict[tuple, dict]:
     """One line per (method, n_train): ``x`` (axis positions), ``value`` (axis values), ``mean``,
     ``std`` of ``score`` (a :data:`~compensation.evaluation.summary.SCORES` name), in axis order.
+    Where the factor sets the training size, one line per method (n_train ``""``).
 
     >>> s = [{"point": p, "f": v, "method": "tps", "n_train": 8, "cl_psnr_mean": m, "cl_psnr_std": 0.5}
     ...      for p, (v, m) in enumerate([(2.0, 18.0), (1.0, 20.0)])]
@@ -62,9 +63,11 @@ def study_lines(summary: list[dict], key: str, listed: list, score: str) -> dict
     [20.0, 18.0]
     """
     pos, _ = axis_positions([r[key] for r in summary], listed)
+    follows = n_train_follows(summary, key)
     lines: dict[tuple, dict] = {}
     for r in sorted(summary, key=lambda r: _order_key(r[key], listed)):
-        line = lines.setdefault((r["method"], r["n_train"]), {"x": [], "value": [], "mean": [], "std": []})
+        line = lines.setdefault((r["method"], "" if follows else r["n_train"]),
+                                {"x": [], "value": [], "mean": [], "std": []})
         line["x"].append(pos[r[key]])
         line["value"].append(r[key])
         line["mean"].append(r.get(f"{score}_mean", math.nan))
@@ -185,7 +188,7 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
     fig, axes = plt.subplots(len(scopes), len(metrics), figsize=(4.2 * len(metrics), 3.4 * len(scopes)),
                              squeeze=False)
     colours = _colours(list({r["method"] for r in summary}))
-    sizes = sorted({r["n_train"] for r in summary})
+    sizes = [""] if n_train_follows(summary, key) else sorted({r["n_train"] for r in summary})
     xlabel = axis.get("label") or key
     xlabel += f" ({axis['unit']})" if axis.get("unit") else ""
     for row, (prefix, scope, unc, bound) in enumerate(scopes):

@@ -18,17 +18,19 @@ import base64
 import csv
 import html
 import io
+import json
 import math
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from compensation.data import frames_root, surface_path
 from compensation.evaluation import charts as ch
 from compensation.evaluation.closed_loop import CAPTURES_DIR
-from compensation.evaluation.summary import (BREAK_COLUMNS, FAILURE_COLUMNS, _finite, _fmt, _order_key,
-                                             axis_keys, breakpoints, failures, read_results, read_study,
-                                             summarize, write_summaries)
+from compensation.evaluation.summary import (_finite, _fmt, _order_key, axis_keys, break_columns,
+                                             breakpoints, failure_columns, failures, read_results,
+                                             read_study, summarize, write_summaries)
 from sim.dataset import image_name
 from sim.errors import DatasetError, ProcamError
 from sim.io import atomic_write, read_json, read_png, write_text
@@ -134,9 +136,10 @@ def zoom_windows(error: np.ndarray, size: int, n: int = 2) -> list[tuple[int, in
 
 
 def grid_cell(image: np.ndarray, windows: list[tuple[int, int]], size: int, cell: int = CELL) -> np.ndarray:
-    """One grid cell: ``image`` (H, W, 3 uint8) enlarged (nearest) to about ``cell`` pixels with the
-    zoom windows outlined, above the windows' contents enlarged side by side, each framed in its
-    colour (:data:`PATCH_COLOURS`).
+    """One grid cell: ``image`` (H, W, 3 uint8) scaled to ``cell`` pixels on its longer side
+    (nearest when enlarged, area-averaged when reduced) with the zoom windows (``size`` pixels of
+    ``image``) outlined, above the windows' contents enlarged side by side at full resolution, each
+    framed in its colour (:data:`PATCH_COLOURS`).
 
     >>> img = np.zeros((16, 16, 3), np.uint8)
     >>> out = grid_cell(img, [(0, 0), (8, 8)], 4, cell=64)
@@ -144,23 +147,23 @@ def grid_cell(image: np.ndarray, windows: list[tuple[int, int]], size: int, cell
     ((96, 64, 3), (255, 200, 0), (0, 190, 255))
     """
     h, w = image.shape[:2]
-    k = max(1, round(cell / max(h, w)))
-    big = np.repeat(np.repeat(image, k, 0), k, 1).copy()
-    t = max(1, k // 2)
+    k = cell / max(h, w)
+    big = cv2.resize(image, (max(1, round(w * k)), max(1, round(h * k))),
+                     interpolation=cv2.INTER_NEAREST if k >= 1 else cv2.INTER_AREA)
+    t = max(1, round(cell / 80))  # outline width
     half = big.shape[1] // len(windows)
     patches = []
     for (y, x), colour in zip(windows, PATCH_COLOURS):
-        y0, x0, y1, x1 = y * k, x * k, (y + size) * k, (x + size) * k
+        y0, x0 = round(y * k), round(x * k)
+        y1, x1 = min(round((y + size) * k), big.shape[0]), min(round((x + size) * k), big.shape[1])
         for sl in ((slice(y0, y0 + t), slice(x0, x1)), (slice(y1 - t, y1), slice(x0, x1)),
                    (slice(y0, y1), slice(x0, x0 + t)), (slice(y0, y1), slice(x1 - t, x1))):
             big[sl] = colour
-        patch = image[y:y + size, x:x + size]
-        z = max(1, half // size)
-        patch = np.repeat(np.repeat(patch, z, 0), z, 1)
+        inner = half - 2 * t
         framed = np.empty((half, half, 3), np.uint8)
         framed[:] = colour
-        p = min(patch.shape[0], half - 2 * t)
-        framed[t:t + p, t:t + p] = patch[:p, :p]
+        framed[t:t + inner, t:t + inner] = cv2.resize(image[y:y + size, x:x + size], (inner, inner),
+                                                      interpolation=cv2.INTER_NEAREST)
         patches.append(framed)
     strip = np.concatenate(patches, axis=1)
     strip = np.pad(strip, ((0, 0), (0, big.shape[1] - strip.shape[1]), (0, 0)), constant_values=255)
@@ -356,10 +359,13 @@ def _pm(row: dict, key: str) -> str:
 
 
 def _provenance(folder: Path, study: dict, rows: list[dict]) -> str:
-    parts = []
-    keys = ("name", "kind", "base", "methods", "seeds", "n_train", "n_test", "size", "profile",
-            "overrides", "created")
-    parts.append(html_table(["key", "value"], [[k, study[k]] for k in keys if k in study]))
+    parts = [html_table(["key", "value"], [[k, json.dumps(v) if isinstance(v, (dict, list)) else v]
+                                           for k, v in study.items()
+                                           if k not in ("axes", "versions", "setups", "question")])]
+    if study.get("axes"):
+        parts.append("<h3>Axes</h3>" + html_table(["key", "label", "unit", "values"], [
+            [a["key"], a.get("label", ""), a.get("unit", ""), ", ".join(map(str, a["values"]))]
+            for a in study["axes"]]))
     if study.get("versions"):
         parts.append("<h3>Versions</h3>" + html_table(["package", "version"],
                                                       list(study["versions"].items())))
@@ -419,7 +425,7 @@ def build_report(folder: Path) -> Path:
                 f"{len(rows)} runs, {len({r['point'] for r in rows})} point(s), "
                 f"{len({r['method'] for r in rows})} method(s); {len(fails)} failure(s).</p>")
     if axes:
-        cols = [*BREAK_COLUMNS[:2], *axes[1:], "break_value", "kind", "other", "gain_db", "reason"]
+        cols = [c for c in break_columns(axes) if c not in ("axis", "point", "psnr", "score")]
         body.append("<h2>Break points</h2>" + html_table(
             cols, [[b.get(c, "") for c in cols] for b in breaks]))
     body.append("<h2>Figure grid</h2>")
@@ -448,15 +454,15 @@ def build_report(folder: Path) -> Path:
     for table in ("table1", "table2", "table3"):
         if (folder / f"{table}.md").is_file():
             body.append(markdown_html((folder / f"{table}.md").read_text()))
-    cols = ["point", *axes, "method", "n_train", "ok/runs", "PSNR", "SSIM", "CL PSNR", "CL SSIM",
+    cols = [*dict.fromkeys(["point", *axes, "method", "n_train"]), "ok/runs", "PSNR", "SSIM", "CL PSNR", "CL SSIM",
             "unc PSNR", "CL unc PSNR", "oracle PSNR", "fit s", "infer ms"]
     keys = ("psnr", "ssim", "cl_psnr", "cl_ssim", "unc_psnr", "cl_unc_psnr", "oracle_psnr", "fit_s", "infer_ms")
     body.append("<h3>Summary: mean ± std over seeds and setups (summary.csv)</h3>" + html_table(
-        cols, [[s["point"], *(s[a] for a in axes), s["method"], s["n_train"], f"{s['ok']}/{s['runs']}",
+        cols, [[*(s[c] for c in cols[:-len(keys) - 1]), f"{s['ok']}/{s['runs']}",
                 *(_pm(s, k) for k in keys)] for s in summary]))
     body.append(f'<h2 class="fail">Failures ({len(fails)})</h2>')
     if fails:
-        fcols = [FAILURE_COLUMNS[0], *axes, *FAILURE_COLUMNS[1:]]
+        fcols = failure_columns(axes)
         body.append(html_table(fcols, [[f.get(c, "") for c in fcols] for f in fails]))
     else:
         body.append("<p>None: every run finished and beat uncompensated.</p>")

@@ -195,8 +195,8 @@ def summarize(rows: list[dict], axes: list[str]) -> list[dict]:
 
 def summary_columns(axes: list[str]) -> list[str]:
     """Columns of ``summary.csv``."""
-    return ["point", *axes, "method", "n_train", "runs", "ok",
-            *(f"{k}_{s}" for k in SCORES for s in ("mean", "std"))]
+    return list(dict.fromkeys(["point", *axes, "method", "n_train", "runs", "ok",
+                               *(f"{k}_{s}" for k in SCORES for s in ("mean", "std"))]))
 
 
 def _order_key(value, listed: list) -> tuple:
@@ -228,6 +228,19 @@ def closed_loop_gain(row: dict) -> tuple[float, float, str]:
     return row.get("psnr_mean", nan), row.get("psnr_mean", nan) - row.get("unc_psnr_mean", nan), "surrogate"
 
 
+def n_train_follows(summary: list[dict], key: str) -> bool:
+    """Whether the factor ``key`` sets the training size (a training-size study): ``n_train`` takes
+    more than one value, and one per value of the factor. Its lines then run across sizes.
+
+    >>> n_train_follows([{"f": 1, "n_train": 8}, {"f": 2, "n_train": 16}], "f")
+    True
+    >>> n_train_follows([{"f": 1, "n_train": 8}, {"f": 1, "n_train": 16}], "f")
+    False
+    """
+    pairs = {(str(r[key]), r["n_train"]) for r in summary}
+    return len({n for _, n in pairs}) > 1 and len(pairs) == len({v for v, _ in pairs})
+
+
 BREAK_COLUMNS = ("method", "n_train", "axis", "break_value", "point", "kind", "other", "gain_db",
                  "psnr", "score", "reason")
 """Columns of ``breakpoints.csv`` (the second axis's key comes after ``n_train`` with two axes)."""
@@ -244,7 +257,8 @@ def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_
       ``kind`` ``overtaken``, ``other`` names that method.
 
     A method that never breaks gets ``kind`` ``none`` and an empty ``break_value``. Without an axis
-    (a bench) there is nothing to break along: no rows.
+    (a bench) there is nothing to break along: no rows. Where the factor sets the training size
+    (:func:`n_train_follows`), the line runs across sizes and ``n_train`` is left empty.
 
     >>> study = {"axes": [{"key": "blur", "values": [0, 1, 2, 3]}]}
     >>> def row(p, m, cl):
@@ -262,9 +276,10 @@ def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_
         return []
     key, listed = axes[0]["key"], axes[0]["values"]
     second = [a["key"] for a in axes[1:]]
+    follows = n_train_follows(summary, key)
     lines: dict[tuple, list[dict]] = {}
     for r in summary:
-        lines.setdefault((r["n_train"], *(r[k] for k in second)), []).append(r)
+        lines.setdefault(("" if follows else r["n_train"], *(r[k] for k in second)), []).append(r)
     out = []
     for group_key, group in sorted(lines.items(), key=lambda kv: tuple(map(str, kv[0]))):
         by_method: dict[str, list[dict]] = {}
@@ -364,11 +379,25 @@ def write_summaries(folder: Path, study: dict, rows: list[dict]) -> dict[str, Pa
     axes = axis_keys(study)
     summary = summarize(rows, axes)
     return {"summary": write_csv(folder / "summary.csv", summary_columns(axes), summary),
-            "breakpoints": write_csv(folder / "breakpoints.csv",
-                                     [*BREAK_COLUMNS[:2], *axes[1:], *BREAK_COLUMNS[2:]],
+            "breakpoints": write_csv(folder / "breakpoints.csv", break_columns(axes),
                                      breakpoints(summary, study)),
-            "failures": write_csv(folder / "failures.csv",
-                                  [FAILURE_COLUMNS[0], *axes, *FAILURE_COLUMNS[1:]], failures(rows, axes))}
+            "failures": write_csv(folder / "failures.csv", failure_columns(axes), failures(rows, axes))}
+
+
+def break_columns(axes: list[str]) -> list[str]:
+    """Columns of ``breakpoints.csv``: a second axis's key after ``n_train``."""
+    return list(dict.fromkeys([*BREAK_COLUMNS[:2], *axes[1:], *BREAK_COLUMNS[2:]]))
+
+
+def failure_columns(axes: list[str]) -> list[str]:
+    """Columns of ``failures.csv``: the axis keys after ``point``."""
+    return list(dict.fromkeys([FAILURE_COLUMNS[0], *axes, *FAILURE_COLUMNS[1:]]))
+
+
+def result_columns(axes: list[str]) -> list[str]:
+    """Columns of ``results.csv``: the axis keys after ``point`` (an axis that is already a column,
+    such as ``n_train``, once)."""
+    return list(dict.fromkeys([RESULT_COLUMNS[0], *axes, *RESULT_COLUMNS[1:]]))
 
 
 def versions() -> dict[str, str]:
@@ -398,7 +427,7 @@ def write_study(folder: Path, study: dict, rows: list[dict]) -> dict[str, Path]:
              **study}
     write_json(folder / "study.json", study)
     axes = axis_keys(study)
-    columns = [RESULT_COLUMNS[0], *axes, *RESULT_COLUMNS[1:]]
+    columns = result_columns(axes)
     files = {"study": folder / "study.json",
              "results": write_csv(folder / "results.csv", columns,
                                   [{c: r.get(c, float("nan")) for c in columns} for r in rows], None)}
