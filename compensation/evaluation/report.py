@@ -143,8 +143,8 @@ def grid_cell(image: np.ndarray, windows: list[tuple[int, int]], size: int, cell
 
     >>> img = np.zeros((16, 16, 3), np.uint8)
     >>> out = grid_cell(img, [(0, 0), (8, 8)], 4, cell=64)
-    >>> out.shape, tuple(out[0, 0]), tuple(out[-1, -1])
-    ((96, 64, 3), (255, 200, 0), (0, 190, 255))
+    >>> out.shape, out[0, 0].tolist(), out[-1, -1].tolist()
+    ((96, 64, 3), [255, 200, 0], [0, 190, 255])
     """
     h, w = image.shape[:2]
     k = cell / max(h, w)
