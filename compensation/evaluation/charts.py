@@ -29,6 +29,8 @@ PANELS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("deltae", "ΔE (CIEDE2000)")
 """Metrics drawn, one column each (ΔE only where scored)."""
 SCOPES = (("", "surrogate", "unc_", None), ("cl_", "closed loop", "cl_unc_", "oracle_"))
 """Panel rows: (column prefix, title, uncompensated prefix, bound prefix)."""
+LOG_SPAN = 20
+"""A positive numeric factor spanning this ratio or more is drawn on a log axis (e.g. 8 … 500 pairs)."""
 FAILURE_COLOUR = "#d62728"
 DPI = 110
 
@@ -180,8 +182,11 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
         The study's first axis (``key``, ``values``, optional ``label`` and ``unit``).
     """
     plt = _pyplot()
+    from matplotlib.ticker import NullFormatter
+
     key, listed = axis["key"], axis["values"]
     pos, numeric = axis_positions([r[key] for r in summary], listed)
+    log_x = numeric and min(pos.values()) > 0 and max(pos.values()) >= LOG_SPAN * min(pos.values())
     metrics = [(m, label) for m, label in PANELS
                if any(_finite(r.get(f"{p}{m}_mean", math.nan)) for r in summary for p, *_ in SCOPES)]
     scopes = [s for s in SCOPES if any(_finite(r.get(f"{s[0]}psnr_mean", math.nan)) for r in summary)] or [SCOPES[0]]
@@ -225,6 +230,10 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
             _draw_failures(ax, fails, key, pos, score)
             if not numeric:
                 ax.set_xticks(list(pos.values()), [str(v) for v in pos])
+            elif log_x:
+                ax.set_xscale("log")
+                ax.set_xticks(list(pos.values()), [f"{v:g}" for v in pos])
+                ax.xaxis.set_minor_formatter(NullFormatter())
             ax.set_xlabel(xlabel, fontsize=9)
             ax.grid(alpha=0.3)
     handles, labels = {}, []
@@ -265,6 +274,8 @@ def draw_speed(points: list[dict], stem: Path, title: str) -> list[Path]:
     """Draw fit time and inference ms per frame (log x) against PSNR for every (method, n_train) of
     :func:`speed_points`, each panel with its Pareto front, to ``stem.png`` and ``stem.svg``."""
     plt = _pyplot()
+    from matplotlib.ticker import NullFormatter
+
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
     colours = _colours(list({p["method"] for p in points}))
     score = points[0]["score"] if points else "closed loop"
@@ -280,8 +291,12 @@ def draw_speed(points: list[dict], stem: Path, title: str) -> list[Path]:
             xs = [p[cost] for p in front]
             ys = [p["psnr"] for p in front]
             ax.step(xs, ys, where="post", color="black", lw=1.2, alpha=0.7, label="Pareto front")
+            ax.plot(xs, ys, "o", ms=12, mfc="none", mec="black", mew=1.2)
         if usable:
             ax.set_xscale("log")
+            lo, hi = min(p[cost] for p in usable), max(p[cost] for p in usable)
+            ax.set_xlim(10 ** math.floor(math.log10(lo / 2)), 10 ** math.ceil(math.log10(hi * 2)))
+            ax.xaxis.set_minor_formatter(NullFormatter())
         else:
             ax.text(0.5, 0.5, f"no {cost} recorded", ha="center", transform=ax.transAxes)
         ax.set_xlabel(xlabel)
