@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from compensation.evaluation.summary import _finite, _order_key, closed_loop_gain, n_train_follows
+from compensation.evaluation.summary import is_finite, order_key, closed_loop_gain, n_train_follows
 from sim.io import atomic_write
 
 PANELS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("deltae", "ΔE (CIEDE2000)"))
@@ -49,8 +49,8 @@ def axis_positions(values: list, listed: list) -> tuple[dict, bool]:
     >>> axis_positions(["RGGB", "none"], ["none", "RGGB"])
     ({'none': 0, 'RGGB': 1}, False)
     """
-    ordered = sorted(set(values), key=lambda v: _order_key(v, listed))
-    numeric = all(_finite(v) for v in ordered)
+    ordered = sorted(set(values), key=lambda v: order_key(v, listed))
+    numeric = all(is_finite(v) for v in ordered)
     return ({v: (float(v) if numeric else i) for i, v in enumerate(ordered)}, numeric)
 
 
@@ -67,7 +67,7 @@ def study_lines(summary: list[dict], key: str, listed: list, score: str) -> dict
     pos, _ = axis_positions([r[key] for r in summary], listed)
     follows = n_train_follows(summary, key)
     lines: dict[tuple, dict] = {}
-    for r in sorted(summary, key=lambda r: _order_key(r[key], listed)):
+    for r in sorted(summary, key=lambda r: order_key(r[key], listed)):
         line = lines.setdefault((r["method"], "" if follows else r["n_train"]),
                                 {"x": [], "value": [], "mean": [], "std": []})
         line["x"].append(pos[r[key]])
@@ -90,7 +90,7 @@ def baseline_line(summary: list[dict], key: str, listed: list, score: str) -> tu
     xs, ys = [], []
     for v in sorted(pos, key=lambda v: pos[v]):
         vals = [r.get(f"{score}_mean", math.nan) for r in summary if r[key] == v]
-        vals = [x for x in vals if _finite(x)]
+        vals = [x for x in vals if is_finite(x)]
         if vals:
             xs.append(pos[v])
             ys.append(float(np.mean(vals)))
@@ -115,7 +115,7 @@ def speed_points(summary: list[dict]) -> list[dict]:
         scored = [closed_loop_gain(r) for r in rs]
 
         def mean(vals):
-            vals = [v for v in vals if _finite(v)]
+            vals = [v for v in vals if is_finite(v)]
             return float(np.mean(vals)) if vals else math.nan
 
         out.append({"method": method, "n_train": n_train,
@@ -134,14 +134,15 @@ def pareto_front(points: list[tuple[float, float]]) -> list[int]:
     >>> pareto_front([(1.0, float("nan")), (2.0, 3.0)])
     [1]
     """
-    ok = [i for i, (c, s) in enumerate(points) if _finite(c) and _finite(s)]
+    ok = [i for i, (c, s) in enumerate(points) if is_finite(c) and is_finite(s)]
     front = [i for i in ok if not any(
         points[j][0] <= points[i][0] and points[j][1] >= points[i][1]
         and (points[j][0] < points[i][0] or points[j][1] > points[i][1]) for j in ok)]
     return sorted(front, key=lambda i: (points[i][0], -points[i][1]))
 
 
-def _pyplot():
+def pyplot():
+    """matplotlib's pyplot on the Agg backend (files only, no display)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -181,15 +182,15 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
     axis : dict
         The study's first axis (``key``, ``values``, optional ``label`` and ``unit``).
     """
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.ticker import NullFormatter
 
     key, listed = axis["key"], axis["values"]
     pos, numeric = axis_positions([r[key] for r in summary], listed)
     log_x = numeric and min(pos.values()) > 0 and max(pos.values()) >= LOG_SPAN * min(pos.values())
     metrics = [(m, label) for m, label in PANELS
-               if any(_finite(r.get(f"{p}{m}_mean", math.nan)) for r in summary for p, *_ in SCOPES)]
-    scopes = [s for s in SCOPES if any(_finite(r.get(f"{s[0]}psnr_mean", math.nan)) for r in summary)] or [SCOPES[0]]
+               if any(is_finite(r.get(f"{p}{m}_mean", math.nan)) for r in summary for p, *_ in SCOPES)]
+    scopes = [s for s in SCOPES if any(is_finite(r.get(f"{s[0]}psnr_mean", math.nan)) for r in summary)] or [SCOPES[0]]
     fig, axes = plt.subplots(len(scopes), len(metrics), figsize=(4.2 * len(metrics), 3.4 * len(scopes)),
                              squeeze=False)
     colours = _colours(list({r["method"] for r in summary}))
@@ -201,7 +202,7 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
             ax = axes[row][col]
             score = f"{prefix}{metric}"
             ax.set_title(f"{scope}: {label}", fontsize=10)
-            if not any(_finite(r.get(f"{score}_mean", math.nan)) for r in summary):
+            if not any(is_finite(r.get(f"{score}_mean", math.nan)) for r in summary):
                 ax.text(0.5, 0.5, "not scored", ha="center", va="center", transform=ax.transAxes)
                 ax.set_axis_off()
                 continue
@@ -223,7 +224,7 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
                     continue
                 ax.axvline(pos[b["break_value"]], color=colours[b["method"]], lw=0.8, ls="-.", alpha=0.6)
                 if metric == "psnr" and prefix == ("cl_" if b["score"] == "closed loop" else "") \
-                        and _finite(b["psnr"]):
+                        and is_finite(b["psnr"]):
                     ax.plot([pos[b["break_value"]]], [b["psnr"]], marker="*", ms=14, mec="black",
                             color=colours[b["method"]], ls="none", zorder=5,
                             label=f"break: {b['method']}" + (f", n={b['n_train']}" if len(sizes) > 1 else ""))
@@ -257,13 +258,13 @@ def _draw_failures(ax, fails: list[dict], key: str, pos: dict, score: str) -> No
     only on the PSNR panel it was judged on (closed loop where scored, else surrogate)."""
     marked = False
     for f in fails:
-        judged = "cl_psnr" if _finite(f.get("cl_psnr", math.nan)) else "psnr"
+        judged = "cl_psnr" if is_finite(f.get("cl_psnr", math.nan)) else "psnr"
         if f[key] not in pos or (f["kind"] == "worse" and score != judged):
             continue
         y = f.get(score, math.nan)
         kw = dict(marker="x", color=FAILURE_COLOUR, ms=8, mew=2, ls="none", zorder=6,
                   label=None if marked else "failure (failed, NaN, diverged, worse)")
-        if _finite(y):
+        if is_finite(y):
             ax.plot([pos[f[key]]], [y], **kw)
         else:
             ax.plot([pos[f[key]]], [0.03], transform=ax.get_xaxis_transform(), clip_on=False, **kw)
@@ -273,7 +274,7 @@ def _draw_failures(ax, fails: list[dict], key: str, pos: dict, score: str) -> No
 def draw_speed(points: list[dict], stem: Path, title: str) -> list[Path]:
     """Draw fit time and inference ms per frame (log x) against PSNR for every (method, n_train) of
     :func:`speed_points`, each panel with its Pareto front, to ``stem.png`` and ``stem.svg``."""
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.ticker import NullFormatter
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
@@ -281,7 +282,7 @@ def draw_speed(points: list[dict], stem: Path, title: str) -> list[Path]:
     score = points[0]["score"] if points else "closed loop"
     for ax, cost, xlabel in ((axes[0], "fit_s", "fit time (s, log)"),
                              (axes[1], "infer_ms", "inference (ms per frame, log)")):
-        usable = [p for p in points if _finite(p[cost]) and p[cost] > 0 and _finite(p["psnr"])]
+        usable = [p for p in points if is_finite(p[cost]) and p[cost] > 0 and is_finite(p["psnr"])]
         for p in usable:
             ax.plot(p[cost], p["psnr"], "o", color=colours[p["method"]], ms=7, label=p["method"])
             ax.annotate(f"{p['method']} n={p['n_train']}", (p[cost], p["psnr"]), fontsize=7,
@@ -344,9 +345,9 @@ def write_charts(folder: Path, study: dict, summary: list[dict], breaks: list[di
         for r in summary:
             groups.setdefault(tuple(r[k] for k in second), []).append(r)
         for values, group in sorted(groups.items(), key=lambda kv: tuple(
-                _order_key(v, a["values"]) for v, a in zip(kv[0], axes[1:]))):
-            where = ", ".join(f"{k} = {v:g}" if _finite(v) else f"{k} = {v}" for k, v in zip(second, values))
-            stem = "study" + "".join(f"_{k}={v:g}" if _finite(v) else f"_{k}={v}" for k, v in zip(second, values))
+                order_key(v, a["values"]) for v, a in zip(kv[0], axes[1:]))):
+            where = ", ".join(f"{k} = {v:g}" if is_finite(v) else f"{k} = {v}" for k, v in zip(second, values))
+            stem = "study" + "".join(f"_{k}={v:g}" if is_finite(v) else f"_{k}={v}" for k, v in zip(second, values))
             match = lambda r: all(r.get(k) == v for k, v in zip(second, values))  # noqa: E731
             out.append(draw_study(group, [b for b in breaks if match(b)], [f for f in fails if match(f)],
                                   first, charts / _slug(stem), f"{name}" + (f" ({where})" if where else ""))[0])

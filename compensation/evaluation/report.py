@@ -28,7 +28,7 @@ import numpy as np
 from compensation.data import frames_root, surface_path
 from compensation.evaluation import charts as ch
 from compensation.evaluation.closed_loop import CAPTURES_DIR
-from compensation.evaluation.summary import (_finite, _fmt, _order_key, axis_keys, break_columns,
+from compensation.evaluation.summary import (is_finite, cell_text, order_key, axis_keys, break_columns,
                                              breakpoints, failure_columns, failures, read_results,
                                              read_study, summarize, write_summaries)
 from sim.dataset import image_name
@@ -215,9 +215,9 @@ def grid_points(rows: list[dict], study: dict) -> list[int]:
         return sorted({r["point"] for r in rows})[:1]
     key, listed = axes[0]["key"], axes[0]["values"]
     keep = [r for r in rows if all(r[a["key"]] == min((x[a["key"]] for x in rows),
-                                                       key=lambda v: _order_key(v, a["values"]))
+                                                       key=lambda v: order_key(v, a["values"]))
                                    for a in axes[1:])]
-    values = sorted({r[key] for r in keep}, key=lambda v: _order_key(v, listed))
+    values = sorted({r[key] for r in keep}, key=lambda v: order_key(v, listed))
     picks = sorted({0, len(values) // 2, len(values) - 1})[:N_GRIDS] if values else []
     return [min(r["point"] for r in keep if r[key] == values[i]) for i in picks]
 
@@ -260,7 +260,7 @@ def figure_grid(folder: Path, rows: list[dict], point: int, stem: Path) -> tuple
             images.append(read_png(file) if file.is_file() else _placeholder(desired.shape[:2]))
         images.append(desired)
         cells.append([grid_cell(img, windows, size) for img in images])
-    plt = ch._pyplot()
+    plt = ch.pyplot()
     h, w = cells[0][0].shape[:2]
     fig, axes = plt.subplots(len(cells), len(columns), squeeze=False,
                              figsize=(len(columns) * w / 100 * 1.08, len(cells) * h / 100 * 1.12), dpi=100)
@@ -297,7 +297,7 @@ pre{background:#f7f7f7;padding:8px;overflow-x:auto;font-size:.8em}.note{color:#5
 
 
 def _e(value) -> str:
-    return html.escape(_fmt(value) if isinstance(value, float) else str(value))
+    return html.escape(cell_text(value) if isinstance(value, float) else str(value))
 
 
 def _is_number(value) -> bool:
@@ -353,9 +353,9 @@ def markdown_html(text: str) -> str:
 
 def _pm(row: dict, key: str) -> str:
     m, s = row.get(f"{key}_mean", math.nan), row.get(f"{key}_std", math.nan)
-    if not _finite(m):
+    if not is_finite(m):
         return ""
-    return f"{m:.3g} ± {s:.2g}" if _finite(s) and s > 0 else f"{m:.4g}"
+    return f"{m:.3g} ± {s:.2g}" if is_finite(s) and s > 0 else f"{m:.4g}"
 
 
 def _provenance(folder: Path, study: dict, rows: list[dict]) -> str:
@@ -369,12 +369,12 @@ def _provenance(folder: Path, study: dict, rows: list[dict]) -> str:
     if study.get("versions"):
         parts.append("<h3>Versions</h3>" + html_table(["package", "version"],
                                                       list(study["versions"].items())))
-    fit = [r["fit_s"] for r in rows if _finite(r.get("fit_s", math.nan))]
+    fit = [r["fit_s"] for r in rows if is_finite(r.get("fit_s", math.nan))]
     timing = []
     for method in sorted({r["method"] for r in rows}):
         mine = [r for r in rows if r["method"] == method]
-        f = [r["fit_s"] for r in mine if _finite(r.get("fit_s", math.nan))]
-        i = [r["infer_ms"] for r in mine if _finite(r.get("infer_ms", math.nan))]
+        f = [r["fit_s"] for r in mine if is_finite(r.get("fit_s", math.nan))]
+        i = [r["infer_ms"] for r in mine if is_finite(r.get("infer_ms", math.nan))]
         timing.append([method, len(mine), sum(f) if f else math.nan, float(np.mean(f)) if f else math.nan,
                        float(np.mean(i)) if i else math.nan])
     parts.append(f"<h3>Timings</h3><p>{len(rows)} runs, {sum(fit):.1f} s of fitting in all.</p>"
@@ -436,7 +436,7 @@ def build_report(folder: Path) -> Path:
             continue
         grids += 1
         at = next(r for r in rows if r["point"] == point)
-        where = ", ".join(f"{k} = {_fmt(at[k])}" for k in axes)
+        where = ", ".join(f"{k} = {cell_text(at[k])}" for k in axes)
         body.append(f'<figure><img alt="figure grid, point {point}" src="{_png_uri(made[0])}">'
                     f"<figcaption>Point {point}{': ' + html.escape(where) if where else ''}, setup "
                     f"{html.escape(made[1])}. Columns: surface s̃ (capture of the gray frame), "

@@ -58,7 +58,12 @@ def _number(text: str) -> float | str:
         return text
 
 
-def _finite(value) -> bool:
+def is_finite(value) -> bool:
+    """Whether ``value`` is a finite number (a text cell or NaN is not).
+
+    >>> is_finite(2), is_finite(float("nan")), is_finite("RGGB")
+    (True, False, False)
+    """
     return isinstance(value, (int, float)) and math.isfinite(value)
 
 
@@ -129,11 +134,11 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
     return rows
 
 
-def _fmt(value, digits: int | None = 6) -> str:
+def cell_text(value, digits: int | None = 6) -> str:
     """A CSV cell: NaN empty, a float to ``digits`` significant digits (None: exact, the shortest
     text that reads back as the same float).
 
-    >>> _fmt(float("nan")), _fmt(13.85700900195572), _fmt(13.85700900195572, None), _fmt("a")
+    >>> cell_text(float("nan")), cell_text(13.85700900195572), cell_text(13.85700900195572, None), cell_text("a")
     ('', '13.857', '13.85700900195572', 'a')
     """
     if isinstance(value, float):
@@ -147,7 +152,7 @@ def write_csv(path: Path, columns: list[str], rows: list[dict], digits: int | No
     text = io.StringIO(newline="")
     w = csv.writer(text)
     w.writerow(columns)
-    w.writerows([[_fmt(r.get(c, ""), digits) for c in columns] for r in rows])
+    w.writerows([[cell_text(r.get(c, ""), digits) for c in columns] for r in rows])
     atomic_write(path, text.getvalue())
     return Path(path)
 
@@ -160,7 +165,7 @@ def mean_std(values) -> tuple[float, float, int]:
     >>> mean_std([float("nan")])
     (nan, nan, 0)
     """
-    v = np.array([x for x in values if _finite(x)], float)
+    v = np.array([x for x in values if is_finite(x)], float)
     if v.size == 0:
         return float("nan"), float("nan"), 0
     return float(v.mean()), float(v.std(ddof=1)) if v.size > 1 else 0.0, int(v.size)
@@ -199,16 +204,16 @@ def summary_columns(axes: list[str]) -> list[str]:
                                *(f"{k}_{s}" for k in SCORES for s in ("mean", "std"))]))
 
 
-def _order_key(value, listed: list) -> tuple:
+def order_key(value, listed: list) -> tuple:
     """Sort key of an axis value: its place in the study's list of values, else its own order.
 
-    >>> sorted([3.0, 1.0, 2.0], key=lambda v: _order_key(v, [2, 3]))
+    >>> sorted([3.0, 1.0, 2.0], key=lambda v: order_key(v, [2, 3]))
     [2.0, 3.0, 1.0]
     """
     for i, v in enumerate(listed):
         if v == value or str(v) == str(value):
             return (0, i, "")
-    return (1, value if _finite(value) else 0.0, str(value))
+    return (1, value if is_finite(value) else 0.0, str(value))
 
 
 def closed_loop_gain(row: dict) -> tuple[float, float, str]:
@@ -221,9 +226,9 @@ def closed_loop_gain(row: dict) -> tuple[float, float, str]:
     (25.0, 10.0, 'surrogate')
     """
     nan = float("nan")
-    if _finite(row.get("cl_psnr_mean", nan)) or _finite(row.get("cl_unc_psnr_mean", nan)):
+    if is_finite(row.get("cl_psnr_mean", nan)) or is_finite(row.get("cl_unc_psnr_mean", nan)):
         base = row.get("cl_unc_psnr_mean", nan)
-        base = base if _finite(base) else row.get("unc_psnr_mean", nan)
+        base = base if is_finite(base) else row.get("unc_psnr_mean", nan)
         return row.get("cl_psnr_mean", nan), row.get("cl_psnr_mean", nan) - base, "closed loop"
     return row.get("psnr_mean", nan), row.get("psnr_mean", nan) - row.get("unc_psnr_mean", nan), "surrogate"
 
@@ -283,9 +288,9 @@ def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_
     out = []
     for group_key, group in sorted(lines.items(), key=lambda kv: tuple(map(str, kv[0]))):
         by_method: dict[str, list[dict]] = {}
-        for r in sorted(group, key=lambda r: _order_key(r[key], listed)):
+        for r in sorted(group, key=lambda r: order_key(r[key], listed)):
             by_method.setdefault(r["method"], []).append(r)
-        values = sorted({r[key] for r in group}, key=lambda v: _order_key(v, listed))
+        values = sorted({r[key] for r in group}, key=lambda v: order_key(v, listed))
         psnr = {m: {r[key]: closed_loop_gain(r) for r in rs} for m, rs in by_method.items()}
         for method in by_method:
             found = None
@@ -293,8 +298,8 @@ def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_
                 if v not in psnr[method]:
                     continue
                 score, gain, which = psnr[method][v]
-                if not _finite(score):
-                    found = (i, "failed", "", f"no {which} score at {key} = {_fmt(v)}: every run failed")
+                if not is_finite(score):
+                    found = (i, "failed", "", f"no {which} score at {key} = {cell_text(v)}: every run failed")
                 elif not gain >= threshold:
                     found = (i, "gain", "", f"{which} PSNR gain over uncompensated {gain:.2f} dB < "
                                             f"{threshold:g} dB")
@@ -355,13 +360,13 @@ def failures(rows: list[dict], axes: list[str]) -> list[dict]:
             continue
         cl, psnr = r.get("cl_psnr", nan), r.get("psnr", nan)
         cl_unc = r.get("cl_unc_psnr", nan)
-        cl_unc = cl_unc if _finite(cl_unc) else r.get("unc_psnr", nan)
-        if not _finite(cl) and not _finite(psnr):
+        cl_unc = cl_unc if is_finite(cl_unc) else r.get("unc_psnr", nan)
+        if not is_finite(cl) and not is_finite(psnr):
             out.append({**base, "kind": "nan", "detail": "no finite PSNR"})
-        elif _finite(cl) and _finite(cl_unc) and cl < cl_unc:
+        elif is_finite(cl) and is_finite(cl_unc) and cl < cl_unc:
             out.append({**base, "kind": "worse",
                         "detail": f"closed loop PSNR {cl:.2f} dB < uncompensated {cl_unc:.2f} dB"})
-        elif not _finite(cl) and _finite(r.get("unc_psnr", nan)) and psnr < r["unc_psnr"]:
+        elif not is_finite(cl) and is_finite(r.get("unc_psnr", nan)) and psnr < r["unc_psnr"]:
             out.append({**base, "kind": "worse",
                         "detail": f"surrogate PSNR {psnr:.2f} dB < uncompensated {r['unc_psnr']:.2f} dB"})
     return out
