@@ -270,3 +270,35 @@ def test_training_size_factor():
     assert (found["compennet"]["break_value"], found["compennet"]["kind"]) == (8.0, "gain")
     assert (found["tps"]["break_value"], found["tps"]["other"]) == (32.0, "compennet")
     assert found["tps"]["n_train"] == ""
+
+
+def test_bench_results_with_tables(tmp_path):
+    """A bench's results.csv names each row's table and variant: the summary and break points take
+    Table 1 (methods x sizes), Tables 2 and 3 (variants of CompenNet) stay out of its lines."""
+    folder = make_study(tmp_path)
+    text = (folder / "results.csv").read_text().splitlines()
+    head = text[0] + ",table,variant"
+    body = [line + ",1,v" for line in text[1:]]
+    body += [line.replace(",tps,", ",compennet,").replace(",ok,", ",failed,") + ",3,compennet-n8-l1"
+             for line in text[1:3]]
+    (folder / "results.csv").write_text("\n".join([head, *body]) + "\n")
+    build_report(folder)
+    summary = _csv(folder / "summary.csv")
+    assert len(summary) == 9 and all(r["runs"] == "2" for r in summary if r["method"] == "compennet")
+    failed = [f for f in _csv(folder / "failures.csv") if f["kind"] == "failed"]
+    assert len(failed) == 2  # the Table 3 failures are listed all the same
+
+
+def test_axis_on_n_train_round_trip(tmp_path):
+    """An axis on n_train is the n_train column itself: written once, read back as an integer."""
+    from compensation.evaluation.summary import read_results, write_study
+
+    rows = [{"point": p, "setup": "s", "method": "tps", "n_train": n, "seed": 0, "status": "ok",
+             "cl_psnr": 20.0 + p, "cl_unc_psnr": 17.0, "fit_s": 0.123456789} for p, n in enumerate((8, 16))]
+    files = write_study(tmp_path, {"name": "t", "kind": "study", "axes": [{"key": "n_train", "values": [8, 16]}]},
+                        rows)
+    header = (tmp_path / "results.csv").read_text().splitlines()[0].split(",")
+    assert header.count("n_train") == 1 and header[:2] == ["point", "setup"]
+    back = read_results(files["results"], ["n_train"])
+    assert [r["n_train"] for r in back] == [8, 16] and back[0]["fit_s"] == 0.123456789
+    assert json.loads((tmp_path / "study.json").read_text())["versions"]["python"]

@@ -30,7 +30,8 @@ from compensation.evaluation import charts as ch
 from compensation.evaluation.closed_loop import CAPTURES_DIR
 from compensation.evaluation.summary import (is_finite, cell_text, order_key, axis_keys, break_columns,
                                              breakpoints, failure_columns, failures, read_results,
-                                             read_study, summarize, write_summaries)
+                                             main_rows, read_study, summarize,
+                                             write_summaries)
 from sim.dataset import image_name
 from sim.errors import DatasetError, ProcamError
 from sim.io import atomic_write, read_json, read_png, write_text
@@ -364,7 +365,7 @@ def _provenance(folder: Path, study: dict, rows: list[dict]) -> str:
                                            if k not in ("axes", "versions", "setups", "question")])]
     if study.get("axes"):
         parts.append("<h3>Axes</h3>" + html_table(["key", "label", "unit", "values"], [
-            [a["key"], a.get("label", ""), a.get("unit", ""), ", ".join(map(str, a["values"]))]
+            [a["key"], a.get("label") or "", a.get("unit") or "", ", ".join(map(str, a["values"]))]
             for a in study["axes"]]))
     if study.get("versions"):
         parts.append("<h3>Versions</h3>" + html_table(["package", "version"],
@@ -413,7 +414,8 @@ def build_report(folder: Path) -> Path:
     study, rows = load_folder(folder)
     axes = axis_keys(study)
     write_summaries(folder, study, rows)
-    summary = summarize(rows, axes)
+    shown = main_rows(rows)
+    summary = summarize(shown, axes)
     breaks = breakpoints(summary, study)
     fails = failures(rows, axes)
     chart_files = ch.write_charts(folder, study, summary, breaks, fails)
@@ -430,12 +432,12 @@ def build_report(folder: Path) -> Path:
             cols, [[b.get(c, "") for c in cols] for b in breaks]))
     body.append("<h2>Figure grid</h2>")
     grids = 0
-    for point in grid_points(rows, study):
-        made = figure_grid(folder, rows, point, folder / "charts" / f"grid_point{point}")
+    for point in grid_points(shown, study):
+        made = figure_grid(folder, shown, point, folder / "charts" / f"grid_point{point}")
         if made is None:
             continue
         grids += 1
-        at = next(r for r in rows if r["point"] == point)
+        at = next(r for r in shown if r["point"] == point)
         where = ", ".join(f"{k} = {cell_text(at[k])}" for k in axes)
         body.append(f'<figure><img alt="figure grid, point {point}" src="{_png_uri(made[0])}">'
                     f"<figcaption>Point {point}{': ' + html.escape(where) if where else ''}, setup "

@@ -126,10 +126,10 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
         if row["status"] not in STATUSES:
             raise ProcamError(f"{path}, line {line}: status {row['status']!r}: expected one of "
                               f"{', '.join(STATUSES)}")
-        for key in (*SCORES, *axes):
+        for key in (*SCORES, *(a for a in axes if a not in ("point", "n_train", "seed"))):
             row[key] = _number(raw.get(key) or "")
-        row["error"] = raw.get("error") or ""
-        row["run"] = raw.get("run") or ""
+        for key in ("error", "run", "table", "variant"):
+            row[key] = raw.get(key) or ""
         rows.append(row)
     return rows
 
@@ -169,6 +169,24 @@ def mean_std(values) -> tuple[float, float, int]:
     if v.size == 0:
         return float("nan"), float("nan"), 0
     return float(v.mean()), float(v.std(ddof=1)) if v.size > 1 else 0.0, int(v.size)
+
+
+def main_rows(rows: list[dict]) -> list[dict]:
+    """The rows that summaries, break points and charts compare: a bench's Table 1 rows (methods ×
+    training sizes) where the rows name their ``table``; Tables 2 and 3 compare variants of one
+    method (initialisation, loss) and have their own tables. A bench without Table 1 keeps every
+    row, each under its ``variant`` (run name) as the method. Rows without a table: all of them.
+
+    >>> rows = [{"table": "1", "method": "tps"}, {"table": "3", "method": "compennet", "variant": "v"}]
+    >>> main_rows(rows)
+    [{'table': '1', 'method': 'tps'}]
+    >>> main_rows(rows[1:])
+    [{'table': '3', 'method': 'v', 'variant': 'v'}]
+    """
+    if not any(r.get("table") for r in rows):
+        return rows
+    first = [r for r in rows if str(r.get("table")) == "1"]
+    return first or [{**r, "method": r.get("variant") or r["method"]} for r in rows]
 
 
 def summarize(rows: list[dict], axes: list[str]) -> list[dict]:
@@ -373,7 +391,8 @@ def failures(rows: list[dict], axes: list[str]) -> list[dict]:
 
 
 def write_summaries(folder: Path, study: dict, rows: list[dict]) -> dict[str, Path]:
-    """Write ``summary.csv``, ``breakpoints.csv`` and ``failures.csv`` into ``folder``.
+    """Write ``summary.csv`` and ``breakpoints.csv`` (of :func:`main_rows`) and ``failures.csv``
+    (of every row) into ``folder``.
 
     Returns
     -------
@@ -382,7 +401,7 @@ def write_summaries(folder: Path, study: dict, rows: list[dict]) -> dict[str, Pa
     """
     folder = Path(folder)
     axes = axis_keys(study)
-    summary = summarize(rows, axes)
+    summary = summarize(main_rows(rows), axes)
     return {"summary": write_csv(folder / "summary.csv", summary_columns(axes), summary),
             "breakpoints": write_csv(folder / "breakpoints.csv", break_columns(axes),
                                      breakpoints(summary, study)),
