@@ -420,8 +420,8 @@ def failure_columns(axes: list[str]) -> list[str]:
 
 def result_columns(axes: list[str]) -> list[str]:
     """Columns of ``results.csv``: the axis keys after ``point`` (an axis that is already a column,
-    such as ``n_train``, once)."""
-    return list(dict.fromkeys([RESULT_COLUMNS[0], *axes, *RESULT_COLUMNS[1:]]))
+    such as ``n_train``, stays in its place)."""
+    return [RESULT_COLUMNS[0], *(a for a in axes if a not in RESULT_COLUMNS), *RESULT_COLUMNS[1:]]
 
 
 def versions() -> dict[str, str]:
