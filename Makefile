@@ -9,13 +9,13 @@ TORCH_SPEC ?= torch==2.13.0
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.procam-installed
 
-.PHONY: demo test venv llvm bench clean-venv
+.PHONY: demo test venv llvm chromium bench clean-venv
 
 # Passive OpenMP waiting: with spinning threads torch slows down 10-30x when the cores are shared.
 demo: venv llvm
 	OMP_WAIT_POLICY=PASSIVE $(VENV)/bin/procam demo --out data
 
-test: venv llvm
+test: venv llvm chromium
 	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q
 
 # Speed figures, measured side by side (a few minutes on 2 cores); see benchmarks/results/.
@@ -37,3 +37,14 @@ $(STAMP): pyproject.toml Makefile
 # probe finds no usable LLVM; otherwise procam falls back to the scalar variant with a warning.
 llvm: $(STAMP)
 	@$(PY) -m sim.variant --ensure-llvm
+
+# The report test renders report.html in headless Chromium: Debian's chromium, installed when
+# missing and running as root with apt-get; otherwise that test is skipped and says why.
+chromium:
+	@if command -v chromium >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+		DEBIAN_FRONTEND=noninteractive apt-get update -qq && \
+		DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium || \
+		echo "procam: installing chromium failed: the report's browser test will be skipped"; \
+	else echo "procam: chromium missing and cannot be installed (not root or no apt-get):" \
+		"the report's browser test will be skipped"; fi

@@ -391,11 +391,30 @@ def add_demo(sub) -> None:
     p.set_defaults(func=cmd_demo)
 
 
+def cmd_report(args: argparse.Namespace) -> None:
+    from compensation.evaluation.report import build_report
+
+    print(f"procam: report -> {build_report(Path(args.folder))}")
+
+
+def add_report(sub) -> None:
+    p = sub.add_parser("report", help="one self-contained HTML page for a study or bench folder",
+                       description="Write DIR/report.html: each method's break point, a figure grid "
+                                   "(surface, uncompensated, each method's closed-loop capture, "
+                                   "desired, with zoomed patches), every chart, the tables, the "
+                                   "failures and the provenance, images inline (no network needed). "
+                                   "Also writes summary.csv, breakpoints.csv, failures.csv and "
+                                   "charts/ from the folder's results.")
+    p.add_argument("folder", help="a folder written by `procam study` or `procam bench`")
+    p.set_defaults(func=cmd_report)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="procam", description="Physically simulated projector–camera "
                                      "testbed for projector photometric compensation.")
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (add_render, add_bench_sim, add_train, add_compensate, add_bench, add_study, add_demo):
+    for add in (add_render, add_bench_sim, add_train, add_compensate, add_bench, add_study, add_demo,
+                add_report):
         add(sub)
     return parser
 

@@ -3,7 +3,9 @@
 Render the shipped default setup at the quick profile, fit CompenNet and TPS, score both on the
 surrogate benchmark and in closed loop (their compensation projected back through the simulated
 setup), beside the iterative-feedback oracle and the reachable share of pixels; print the table and
-write a figure: surface, uncompensated, each method's compensated capture, desired.
+write a figure: surface, uncompensated, each method's compensated capture, desired. The folder is a
+one-point bench (``study.json``, ``results.csv``, each run's closed-loop captures), and the demo ends
+by writing its HTML report (``report.html``, :mod:`compensation.evaluation.report`).
 """
 from __future__ import annotations
 
@@ -14,7 +16,10 @@ import torch
 
 from compensation.data import load_setup_data
 from compensation.evaluation.closed_loop import (closed_loop, closed_loop_scores, iterative_refinement,
-                                                 reachable_mask, reachable_overlay, simulator_for)
+                                                 reachable_mask, reachable_overlay, simulator_for,
+                                                 write_captures)
+from compensation.evaluation.report import build_report
+from compensation.evaluation.summary import write_study
 from compensation.training.config import PROFILES, applicable, make_config
 from compensation.training.runs import SCORES, load_run, scores_are_current, train_run
 from sim.dataset import FrameSpec, write_setup
@@ -31,6 +36,15 @@ def _row(name: str, scores: dict) -> str:
     reach = f"{scores['psnr_reachable']:>6.2f}" if "psnr_reachable" in scores else "     -"
     return (f"| {name:<40} | {scores['psnr']:>6.2f} | {scores['rmse']:.4f} | {scores['ssim']:.4f} "
             f"| {scores['deltaE']:>6.2f} | {reach}    |")
+
+
+def _scores(metrics: dict, closed: dict) -> dict:
+    """A run's ``results.csv`` cells: surrogate, closed-loop and uncompensated scores, fit time and
+    inference ms per frame."""
+    keys = (("psnr", "psnr"), ("rmse", "rmse"), ("ssim", "ssim"), ("deltae", "deltaE"))
+    return {**{k: metrics[m] for k, m in keys}, **{f"cl_{k}": closed[m] for k, m in keys},
+            **{f"unc_{k}": metrics["uncompensated"][m] for k, m in keys},
+            "fit_s": metrics["train_seconds"], "infer_ms": closed["infer_ms_per_frame"]}
 
 
 def figure(surface: torch.Tensor, uncompensated: torch.Tensor, compensated: dict[str, torch.Tensor],
@@ -85,7 +99,8 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
     Parameters
     ----------
     out : path-like
-        Output folder: ``data/``, ``runs/``, ``demo.png`` and ``demo.json`` go there.
+        Output folder: ``data/``, ``runs/`` (each with ``closed_loop/`` captures), ``demo.png``,
+        ``demo.json``, ``study.json``, ``results.csv`` and ``report.html`` go there.
     progress : bool
         Show progress bars.
     **overrides
@@ -111,7 +126,7 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
     mask = reachable_mask(data, y)
     results = {"uncompensated": closed_loop_scores(data.test.captures, y, mask)}
     lines.append(_row("uncompensated (y projected as is)", results["uncompensated"]))
-    captures = {}
+    captures, rows = {}, []
     for name in METHODS:
         run_dir = out / "runs" / f"default-{name}"
         done = run_dir / "metrics.json"
@@ -119,11 +134,14 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
             train_run(setup_dir, make_config(PROFILE, name, **applicable(name, overrides)), run_dir,
                       progress, overwrite=True)
         metrics = read_json(done, "run metrics")
-        method, _ = load_run(run_dir)
+        method, config = load_run(run_dir)
         closed, captured = closed_loop(method, data, sim, return_captures=True)
+        write_captures(run_dir, captured)
         captures[name] = captured[:N_FIGURE]
         results[name] = {"surrogate": {k: metrics[k] for k in SCORES},
                          "closed_loop": closed, "train_seconds": metrics["train_seconds"]}
+        rows.append({"method": name, "n_train": prof["n_train"], "seed": config["train"]["seed"],
+                     "run": f"runs/{run_dir.name}", **_scores(metrics, closed)})
         lines.append(_row(f"{name}: surrogate π†(x̃) vs x", metrics))
         lines.append(_row(f"{name}: closed loop, capture vs y", closed))
     results["oracle"] = iterative_refinement(data, sim, report=(ORACLE_ITERATIONS,))
@@ -132,6 +150,19 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
     write_png(out / "demo.png", figure(data.surface, data.test.captures[:N_FIGURE], captures, y[:N_FIGURE],
                                        mask[:N_FIGURE]))
     write_json(out / "demo.json", results)
+    unc, oracle = results["uncompensated"], results["oracle"][-1]
+    base = {"point": 0, "setup": setup.name, "status": "ok", "error": "",
+            **{f"cl_unc_{k}": unc[m] for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))},
+            **{f"oracle_{k}": oracle[m] for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))}}
+    write_study(out, {"name": "demo", "kind": "bench", "question": "How well do CompenNet and TPS "
+                      "compensate the default setup, on held-out pairs and in closed loop?",
+                      "base": "default", "axes": [], "methods": list(METHODS),
+                      "seeds": sorted({r["seed"] for r in rows}), "n_train": prof["n_train"],
+                      "n_test": prof["n_test"], "size": [prof["size"]] * 2, "profile": PROFILE,
+                      "overrides": {k: v for k, v in overrides.items() if v is not None},
+                      "setups": {setup.name: f"data/{setup.name}/setup.toml"}},
+                [{**base, **r} for r in rows])
+    report = build_report(out)
     reachable = results["uncompensated"]["reachable_fraction"]
     print(f"\nprocam demo: default setup, {PROFILE} profile ({prof['size']}² px, "
           f"{prof['n_train']} train / {prof['n_test']} test pairs)\n")
@@ -140,4 +171,5 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
           "'PSNR reachable' scores those only. SSIM as the official CompenNet code computes it; ΔE: "
           "CIEDE2000.")
     print(f"figure -> {out / 'demo.png'}; numbers -> {out / 'demo.json'}")
+    print(f"report -> {report}")
     return results

@@ -158,6 +158,25 @@ def test_baselines_beat_uncompensated(bench):
     assert oracle[-1] > float(unc["CL PSNR"]) + CLOSED_LOOP_MARGIN_DB
 
 
+def test_report_of_the_closed_loop_bench(bench, capsys):
+    """Each closed-loop run keeps the captures of its first test images; `procam report` reads the
+    bench folder (Table 1 with the paper's column, the speed chart, the figure grid)."""
+    out = bench / "bench"
+    for run in out.glob("runs/s*/*-n[48]"):
+        assert sorted(p.name for p in (run / "closed_loop").glob("*.png")) == ["img_0001.png", "img_0002.png"]
+    assert main(["report", str(out)]) == 0
+    assert str(out / "report.html") in capsys.readouterr().out
+    page = (out / "report.html").read_text()
+    assert "Table 1" in page and "paper PSNR" in page and page.count("data:image/png;base64,") >= 2
+    assert (out / "charts" / "speed.png").is_file() and (out / "charts" / "grid_point0.png").is_file()
+    with open(out / "summary.csv", newline="") as f:
+        summary = {(r["method"], r["n_train"]): r for r in csv.DictReader(f)}
+    for n in ("4", "8"):
+        tps = summary[("tps", n)]
+        assert float(tps["cl_psnr_mean"]) > float(tps["cl_unc_psnr_mean"]) + CLOSED_LOOP_MARGIN_DB
+        assert float(tps["infer_ms_mean"]) > 0
+
+
 def test_resume_trains_nothing_and_failures_are_isolated(bench, monkeypatch):
     runs = bench / "bench" / "runs"
     metrics = sorted(runs.rglob("metrics.json"))

@@ -1,5 +1,6 @@
 """``procam demo`` end to end on a tiny size: the table's rows, margins over uncompensated, the figure
 and the JSON on disk, resumable."""
+import csv
 import json
 import math
 
@@ -45,6 +46,18 @@ def test_demo_tiny(tmp_path, capsys):
     assert results["compennet"]["train_seconds"] > 0
 
     assert json.loads((tmp_path / "demo.json").read_text()).keys() == results.keys()
+    # the folder is a one-point bench that `procam report` reads; the demo wrote its report
+    assert f"report -> {tmp_path / 'report.html'}" in out
+    page = (tmp_path / "report.html").read_text()
+    assert page.count("data:image/png;base64,") >= 2 and "http" not in page.split("<body>")[0]
+    with open(tmp_path / "results.csv", newline="") as f:
+        rows = {r["method"]: r for r in csv.DictReader(f)}
+    assert set(rows) == set(METHODS)
+    for name in METHODS:
+        assert float(rows[name]["cl_psnr"]) == results[name]["closed_loop"]["psnr"]
+        assert float(rows[name]["fit_s"]) > 0 and float(rows[name]["infer_ms"]) > 0
+        kept = sorted(p.name for p in (tmp_path / rows[name]["run"] / "closed_loop").glob("*.png"))
+        assert kept == [f"img_{i:04d}.png" for i in range(1, N_FIGURE + 1)]
     grid = iio.imread(tmp_path / "demo.png")
     assert grid.ndim == 3 and grid.shape[2] == 3 and grid.shape[1] > grid.shape[0]  # 6 columns × 4 rows
     # resumable: a second run reuses the dataset and the runs and gives the same numbers

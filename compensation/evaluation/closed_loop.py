@@ -16,11 +16,15 @@ from compensation.data import SetupData
 from compensation.evaluation.metrics import evaluate, masked_scores
 from sim import seeds
 from sim.capture import Simulator
-from sim.dataset import canonical_size
+from sim.dataset import canonical_size, image_name
 from sim.errors import DatasetError
-from sim.io import read_json, to_float, to_uint8
+from sim.io import read_json, to_float, to_uint8, write_png
 from sim.setup import load_setup
 
+CAPTURES_DIR = "closed_loop"
+"""Folder of a run holding the closed-loop captures of its first test images (figures, reports)."""
+N_CAPTURES = 4
+"""Closed-loop captures kept per run: those of the first test images."""
 REACH_TOLERANCE = 2 / 255
 """Slack (encoded units) for the reachable test: two 8-bit levels of camera noise."""
 
@@ -139,6 +143,26 @@ def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor |
     scores = {**closed_loop_scores(captured, y, reachable_mask(data, y), batch_size),
               "projections": int(y.shape[0]), "infer_ms_per_frame": round(infer_ms, 3)}
     return (scores, captured) if return_captures else scores
+
+
+def write_captures(run_dir: str | Path, captured: torch.Tensor, n: int = N_CAPTURES) -> Path:
+    """Keep the closed-loop captures of the first ``n`` test images in ``run_dir/closed_loop`` as
+    ``img_0001.png`` … (8 bit, canonical view), where reports find them.
+
+    Parameters
+    ----------
+    captured : torch.Tensor
+        float32 (N, 3, H, W) in [0, 1], as :func:`closed_loop` returns them.
+
+    Returns
+    -------
+    Path
+        The folder.
+    """
+    folder = Path(run_dir) / CAPTURES_DIR
+    for i, image in enumerate(captured[:n].permute(0, 2, 3, 1).cpu().numpy(), start=1):
+        write_png(folder / image_name(i), to_uint8(image))
+    return folder
 
 
 def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,

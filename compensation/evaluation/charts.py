@@ -1,0 +1,357 @@
+"""Charts of a study or bench folder (matplotlib, Agg): scores against the factor, and speed against
+accuracy.
+
+The data each chart draws comes from small pure functions (:func:`axis_positions`,
+:func:`study_lines`, :func:`baseline_line`, :func:`speed_points`, :func:`pareto_front`), tested on
+their own; the ``draw_*`` functions only draw it. Files go to ``DIR/charts/`` as PNG and SVG:
+
+``study.png``                  one axis: surrogate and closed-loop panels (PSNR, SSIM, ΔE where
+                               scored) against the factor, one line per method and training size
+                               with a ± std band, uncompensated and the oracle bound, break points
+                               (star and vertical line) and failures (red x)
+``study_<key>=<value>.png``    two axes: the same per value of the second axis
+``speed.png``                  fit time and inference ms per frame (log x) against PSNR (closed loop
+                               where scored), every method and training size, the Pareto front
+"""
+from __future__ import annotations
+
+import io
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from compensation.evaluation.summary import is_finite, order_key, closed_loop_gain, n_train_follows
+from sim.io import atomic_write
+
+PANELS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("deltae", "ΔE (CIEDE2000)"))
+"""Metrics drawn, one column each (ΔE only where scored)."""
+SCOPES = (("", "surrogate", "unc_", None), ("cl_", "closed loop", "cl_unc_", "oracle_"))
+"""Panel rows: (column prefix, title, uncompensated prefix, bound prefix)."""
+LOG_SPAN = 20
+"""A positive numeric factor spanning this ratio or more is drawn on a log axis (e.g. 8 … 500 pairs)."""
+FAILURE_COLOUR = "#d62728"
+DPI = 110
+
+
+def axis_positions(values: list, listed: list) -> tuple[dict, bool]:
+    """Where each axis value goes on the x axis: itself when every value is a number, else its
+    rank in the study's order (categorical ticks).
+
+    Returns
+    -------
+    dict, bool
+        Position by value; whether the axis is numeric.
+
+    >>> axis_positions([2.0, 0.5], [0.5, 2.0])
+    ({0.5: 0.5, 2.0: 2.0}, True)
+    >>> axis_positions(["RGGB", "none"], ["none", "RGGB"])
+    ({'none': 0, 'RGGB': 1}, False)
+    """
+    ordered = sorted(set(values), key=lambda v: order_key(v, listed))
+    numeric = all(is_finite(v) for v in ordered)
+    return ({v: (float(v) if numeric else i) for i, v in enumerate(ordered)}, numeric)
+
+
+def study_lines(summary: list[dict], key: str, listed: list, score: str) -> dict[tuple, dict]:
+    """One line per (method, n_train): ``x`` (axis positions), ``value`` (axis values), ``mean``,
+    ``std`` of ``score`` (a :data:`~compensation.evaluation.summary.SCORES` name), in axis order.
+    Where the factor sets the training size, one line per method (n_train ``""``).
+
+    >>> s = [{"point": p, "f": v, "method": "tps", "n_train": 8, "cl_psnr_mean": m, "cl_psnr_std": 0.5}
+    ...      for p, (v, m) in enumerate([(2.0, 18.0), (1.0, 20.0)])]
+    >>> study_lines(s, "f", [1.0, 2.0], "cl_psnr")[("tps", 8)]["mean"]
+    [20.0, 18.0]
+    """
+    pos, _ = axis_positions([r[key] for r in summary], listed)
+    follows = n_train_follows(summary, key)
+    lines: dict[tuple, dict] = {}
+    for r in sorted(summary, key=lambda r: order_key(r[key], listed)):
+        line = lines.setdefault((r["method"], "" if follows else r["n_train"]),
+                                {"x": [], "value": [], "mean": [], "std": []})
+        line["x"].append(pos[r[key]])
+        line["value"].append(r[key])
+        line["mean"].append(r.get(f"{score}_mean", math.nan))
+        line["std"].append(r.get(f"{score}_std", math.nan))
+    return lines
+
+
+def baseline_line(summary: list[dict], key: str, listed: list, score: str) -> tuple[list, list]:
+    """A method-free score (uncompensated or oracle) against the factor: the mean of ``score_mean``
+    over the methods' rows at each axis value (they share it), NaN-free points only.
+
+    >>> s = [{"f": 1.0, "unc_psnr_mean": 12.0}, {"f": 1.0, "unc_psnr_mean": 12.0},
+    ...      {"f": 3.0, "unc_psnr_mean": 10.0}]
+    >>> baseline_line(s, "f", [1.0, 3.0], "unc_psnr")
+    ([1.0, 3.0], [12.0, 10.0])
+    """
+    pos, _ = axis_positions([r[key] for r in summary], listed)
+    xs, ys = [], []
+    for v in sorted(pos, key=lambda v: pos[v]):
+        vals = [r.get(f"{score}_mean", math.nan) for r in summary if r[key] == v]
+        vals = [x for x in vals if is_finite(x)]
+        if vals:
+            xs.append(pos[v])
+            ys.append(float(np.mean(vals)))
+    return xs, ys
+
+
+def speed_points(summary: list[dict]) -> list[dict]:
+    """Speed and accuracy of every (method, n_train), averaged over the folder's points: ``fit_s``,
+    ``infer_ms`` (per frame), ``psnr`` and ``score`` (``closed loop`` where scored, else
+    ``surrogate``, as :func:`~compensation.evaluation.summary.closed_loop_gain`).
+
+    >>> s = [{"method": "tps", "n_train": 8, "fit_s_mean": f, "infer_ms_mean": 2.0,
+    ...       "cl_psnr_mean": p, "cl_unc_psnr_mean": 10.0} for f, p in ((1.0, 20.0), (3.0, 22.0))]
+    >>> speed_points(s)
+    [{'method': 'tps', 'n_train': 8, 'fit_s': 2.0, 'infer_ms': 2.0, 'psnr': 21.0, 'score': 'closed loop'}]
+    """
+    groups: dict[tuple, list[dict]] = {}
+    for r in summary:
+        groups.setdefault((r["method"], r["n_train"]), []).append(r)
+    out = []
+    for (method, n_train), rs in groups.items():
+        scored = [closed_loop_gain(r) for r in rs]
+
+        def mean(vals):
+            vals = [v for v in vals if is_finite(v)]
+            return float(np.mean(vals)) if vals else math.nan
+
+        out.append({"method": method, "n_train": n_train,
+                    "fit_s": mean(r.get("fit_s_mean", math.nan) for r in rs),
+                    "infer_ms": mean(r.get("infer_ms_mean", math.nan) for r in rs),
+                    "psnr": mean(s[0] for s in scored), "score": scored[0][2]})
+    return out
+
+
+def pareto_front(points: list[tuple[float, float]]) -> list[int]:
+    """Indices of the points no other point beats: cost (x) lower or equal and score (y) higher or
+    equal, one of them strictly. Sorted by cost; points with a NaN are never on the front.
+
+    >>> pareto_front([(1.0, 10.0), (2.0, 9.0), (3.0, 12.0), (0.5, 5.0), (3.0, 11.0), (4.0, 12.0)])
+    [3, 0, 2]
+    >>> pareto_front([(1.0, float("nan")), (2.0, 3.0)])
+    [1]
+    """
+    ok = [i for i, (c, s) in enumerate(points) if is_finite(c) and is_finite(s)]
+    front = [i for i in ok if not any(
+        points[j][0] <= points[i][0] and points[j][1] >= points[i][1]
+        and (points[j][0] < points[i][0] or points[j][1] > points[i][1]) for j in ok)]
+    return sorted(front, key=lambda i: (points[i][0], -points[i][1]))
+
+
+def pyplot():
+    """matplotlib's pyplot on the Agg backend (files only, no display)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, stem: Path) -> list[Path]:
+    paths = []
+    for ext in ("png", "svg"):
+        buf = io.BytesIO()
+        fig.savefig(buf, format=ext, dpi=DPI)
+        atomic_write(stem.with_suffix(f".{ext}"), buf.getvalue())
+        paths.append(stem.with_suffix(f".{ext}"))
+    return paths
+
+
+def _colours(methods: list[str]) -> dict[str, str]:
+    cycle = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"]
+    return {m: cycle[i % len(cycle)] for i, m in enumerate(sorted(methods))}
+
+
+MARKERS = ("o", "s", "^", "D", "v", "P")
+
+
+def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis: dict, stem: Path,
+               title: str) -> list[Path]:
+    """Draw one study chart (see the module's description) to ``stem.png`` and ``stem.svg``.
+
+    Parameters
+    ----------
+    summary, breaks, fails : list of dict
+        The rows of :func:`~compensation.evaluation.summary.summarize`,
+        :func:`~compensation.evaluation.summary.breakpoints` and
+        :func:`~compensation.evaluation.summary.failures` for the points drawn.
+    axis : dict
+        The study's first axis (``key``, ``values``, optional ``label`` and ``unit``).
+    """
+    plt = pyplot()
+    from matplotlib.ticker import NullFormatter
+
+    key, listed = axis["key"], axis["values"]
+    pos, numeric = axis_positions([r[key] for r in summary], listed)
+    log_x = numeric and min(pos.values()) > 0 and max(pos.values()) >= LOG_SPAN * min(pos.values())
+    metrics = [(m, label) for m, label in PANELS
+               if any(is_finite(r.get(f"{p}{m}_mean", math.nan)) for r in summary for p, *_ in SCOPES)]
+    scopes = [s for s in SCOPES if any(is_finite(r.get(f"{s[0]}psnr_mean", math.nan)) for r in summary)] or [SCOPES[0]]
+    fig, axes = plt.subplots(len(scopes), len(metrics), figsize=(4.2 * len(metrics), 3.4 * len(scopes)),
+                             squeeze=False)
+    colours = _colours(list({r["method"] for r in summary}))
+    sizes = [""] if n_train_follows(summary, key) else sorted({r["n_train"] for r in summary})
+    xlabel = axis.get("label") or key
+    xlabel += f" ({axis['unit']})" if axis.get("unit") else ""
+    for row, (prefix, scope, unc, bound) in enumerate(scopes):
+        for col, (metric, label) in enumerate(metrics):
+            ax = axes[row][col]
+            score = f"{prefix}{metric}"
+            ax.set_title(f"{scope}: {label}", fontsize=10)
+            if not any(is_finite(r.get(f"{score}_mean", math.nan)) for r in summary):
+                ax.text(0.5, 0.5, "not scored", ha="center", va="center", transform=ax.transAxes)
+                ax.set_axis_off()
+                continue
+            for (method, n), line in study_lines(summary, key, listed, score).items():
+                mean, std = np.array(line["mean"], float), np.array(line["std"], float)
+                name = method + (f", n={n}" if len(sizes) > 1 else "")
+                ax.plot(line["x"], mean, color=colours[method], marker=MARKERS[sizes.index(n) % len(MARKERS)],
+                        ms=4, label=name)
+                ax.fill_between(line["x"], mean - np.nan_to_num(std), mean + np.nan_to_num(std),
+                                color=colours[method], alpha=0.18, lw=0)
+            for base, style, name in ((unc, "--", "uncompensated"), (bound, ":", "physical bound (oracle)")):
+                if base is None:
+                    continue
+                xs, ys = baseline_line(summary, key, listed, f"{base}{metric}")
+                if xs:
+                    ax.plot(xs, ys, style, color="black", lw=1.4, label=name)
+            for b in breaks:
+                if b["kind"] == "none" or b["break_value"] not in pos:
+                    continue
+                ax.axvline(pos[b["break_value"]], color=colours[b["method"]], lw=0.8, ls="-.", alpha=0.6)
+                if metric == "psnr" and prefix == ("cl_" if b["score"] == "closed loop" else "") \
+                        and is_finite(b["psnr"]):
+                    ax.plot([pos[b["break_value"]]], [b["psnr"]], marker="*", ms=14, mec="black",
+                            color=colours[b["method"]], ls="none", zorder=5,
+                            label=f"break: {b['method']}" + (f", n={b['n_train']}" if len(sizes) > 1 else ""))
+            _draw_failures(ax, fails, key, pos, score)
+            if not numeric:
+                ax.set_xticks(list(pos.values()), [str(v) for v in pos])
+            elif log_x:
+                ax.set_xscale("log")
+                ax.set_xticks(list(pos.values()), [f"{v:g}" for v in pos])
+                ax.xaxis.set_minor_formatter(NullFormatter())
+            ax.set_xlabel(xlabel, fontsize=9)
+            ax.grid(alpha=0.3)
+    handles, labels = {}, []
+    for ax in axes.flat:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in handles:
+                handles[lab] = h
+                labels.append(lab)
+    fig.legend([handles[lab] for lab in labels], labels, loc="lower center", ncol=min(len(labels), 5),
+               fontsize=8, frameon=False)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout(rect=(0, 0.06 + 0.025 * ((len(labels) - 1) // 5), 1, 0.95))
+    try:
+        return _save(fig, stem)
+    finally:
+        plt.close(fig)
+
+
+def _draw_failures(ax, fails: list[dict], key: str, pos: dict, score: str) -> None:
+    """Red x at each failed run's score, or at the panel's foot when it has none; a ``worse`` run
+    only on the PSNR panel it was judged on (closed loop where scored, else surrogate)."""
+    marked = False
+    for f in fails:
+        judged = "cl_psnr" if is_finite(f.get("cl_psnr", math.nan)) else "psnr"
+        if f[key] not in pos or (f["kind"] == "worse" and score != judged):
+            continue
+        y = f.get(score, math.nan)
+        kw = dict(marker="x", color=FAILURE_COLOUR, ms=8, mew=2, ls="none", zorder=6,
+                  label=None if marked else "failure (failed, NaN, diverged, worse)")
+        if is_finite(y):
+            ax.plot([pos[f[key]]], [y], **kw)
+        else:
+            ax.plot([pos[f[key]]], [0.03], transform=ax.get_xaxis_transform(), clip_on=False, **kw)
+        marked = True
+
+
+def draw_speed(points: list[dict], stem: Path, title: str) -> list[Path]:
+    """Draw fit time and inference ms per frame (log x) against PSNR for every (method, n_train) of
+    :func:`speed_points`, each panel with its Pareto front, to ``stem.png`` and ``stem.svg``."""
+    plt = pyplot()
+    from matplotlib.ticker import NullFormatter
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    colours = _colours(list({p["method"] for p in points}))
+    score = points[0]["score"] if points else "closed loop"
+    for ax, cost, xlabel in ((axes[0], "fit_s", "fit time (s, log)"),
+                             (axes[1], "infer_ms", "inference (ms per frame, log)")):
+        usable = [p for p in points if is_finite(p[cost]) and p[cost] > 0 and is_finite(p["psnr"])]
+        for p in usable:
+            ax.plot(p[cost], p["psnr"], "o", color=colours[p["method"]], ms=7, label=p["method"])
+            ax.annotate(f"{p['method']} n={p['n_train']}", (p[cost], p["psnr"]), fontsize=7,
+                        xytext=(4, 4), textcoords="offset points")
+        front = [usable[i] for i in pareto_front([(p[cost], p["psnr"]) for p in usable])]
+        if front:
+            xs = [p[cost] for p in front]
+            ys = [p["psnr"] for p in front]
+            ax.step(xs, ys, where="post", color="black", lw=1.2, alpha=0.7, label="Pareto front")
+            ax.plot(xs, ys, "o", ms=12, mfc="none", mec="black", mew=1.2)
+        if usable:
+            ax.set_xscale("log")
+            lo, hi = min(p[cost] for p in usable), max(p[cost] for p in usable)
+            ax.set_xlim(10 ** math.floor(math.log10(lo / 2)), 10 ** math.ceil(math.log10(hi * 2)))
+            ax.xaxis.set_minor_formatter(NullFormatter())
+        else:
+            ax.text(0.5, 0.5, f"no {cost} recorded", ha="center", transform=ax.transAxes)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(f"{score} PSNR (dB)")
+        ax.grid(alpha=0.3, which="both")
+        handles = dict(zip(*reversed(ax.get_legend_handles_labels())))
+        if handles:
+            ax.legend(list(handles.values()), list(handles), fontsize=7)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    try:
+        return _save(fig, stem)
+    finally:
+        plt.close(fig)
+
+
+def _slug(text: str) -> str:
+    """A file-name-safe form of ``text``.
+
+    >>> _slug("projector.aperture=0.5")
+    'projector.aperture=0.5'
+    >>> _slug("camera.bayer=RG GB/x")
+    'camera.bayer=RG_GB_x'
+    """
+    return re.sub(r"[^A-Za-z0-9.=+-]+", "_", text)
+
+
+def write_charts(folder: Path, study: dict, summary: list[dict], breaks: list[dict],
+                 fails: list[dict]) -> list[Path]:
+    """Draw every chart of a folder into ``folder/charts``: the study charts (one per value of a
+    second axis) and the speed–accuracy chart.
+
+    Returns
+    -------
+    list of Path
+        The PNG files written (each has an SVG beside it).
+    """
+    charts = Path(folder) / "charts"
+    name = study.get("name") or Path(folder).name
+    axes = study.get("axes", [])
+    out = []
+    if axes and summary:
+        first, second = axes[0], [a["key"] for a in axes[1:]]
+        groups: dict[tuple, list[dict]] = {}
+        for r in summary:
+            groups.setdefault(tuple(r[k] for k in second), []).append(r)
+        for values, group in sorted(groups.items(), key=lambda kv: tuple(
+                order_key(v, a["values"]) for v, a in zip(kv[0], axes[1:]))):
+            where = ", ".join(f"{k} = {v:g}" if is_finite(v) else f"{k} = {v}" for k, v in zip(second, values))
+            stem = "study" + "".join(f"_{k}={v:g}" if is_finite(v) else f"_{k}={v}" for k, v in zip(second, values))
+            match = lambda r: all(r.get(k) == v for k, v in zip(second, values))  # noqa: E731
+            out.append(draw_study(group, [b for b in breaks if match(b)], [f for f in fails if match(f)],
+                                  first, charts / _slug(stem), f"{name}" + (f" ({where})" if where else ""))[0])
+    points = speed_points(summary)
+    if points:
+        out.append(draw_speed(points, charts / "speed", f"{name}: speed against accuracy")[0])
+    return out
