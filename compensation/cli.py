@@ -346,6 +346,12 @@ def cmd_study(args: argparse.Namespace) -> None:
           f"{done['reused']} reused), {done['failed']} failed rows, {done['setups']} setups")
     print(f"procam: study -> {done['study']}")
     print(f"procam: results -> {done['results']}")
+    from compensation.evaluation.report import build_report
+
+    page = build_report(Path(args.out))
+    print(f"procam: summary, break points, failures -> {Path(args.out)}/*.csv; charts -> "
+          f"{Path(args.out) / 'charts'}")
+    print(f"procam: report -> {page}")
 
 
 def add_study(sub) -> None:
@@ -354,7 +360,8 @@ def add_study(sub) -> None:
                                    "one or two axes over setup keys or training options, methods, "
                                    "seeds): render each point's setup, fit each method per seed, "
                                    "score it on held-out pairs and in closed loop, and write "
-                                   "OUT/study.json and OUT/results.csv. Resumable: a finished job "
+                                   "OUT/study.json, OUT/results.csv, the summary, break-point and "
+                                   "failure CSVs, the charts and OUT/report.html. Resumable: a finished job "
                                    "with the same configuration is reused.")
     p.add_argument("study", help="study file, or the name of a shipped study (scenes/studies/)")
     p.add_argument("--out", required=True, help="study folder")

@@ -19,7 +19,7 @@ from compensation.evaluation.closed_loop import (closed_loop, closed_loop_scores
                                                  reachable_mask, reachable_overlay, simulator_for,
                                                  write_captures)
 from compensation.evaluation.report import build_report
-from compensation.evaluation.summary import write_study
+from compensation.evaluation.jobs import write_results, write_study_record
 from compensation.training.config import PROFILES, applicable, make_config
 from compensation.training.runs import SCORES, load_run, scores_are_current, train_run
 from sim.dataset import FrameSpec, write_setup
@@ -154,14 +154,16 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
     base = {"point": 0, "setup": setup.name, "status": "ok", "error": "",
             **{f"cl_unc_{k}": unc[m] for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))},
             **{f"oracle_{k}": oracle[m] for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))}}
-    write_study(out, {"name": "demo", "kind": "bench", "question": "How well do CompenNet and TPS "
-                      "compensate the default setup, on held-out pairs and in closed loop?",
-                      "base": "default", "axes": [], "methods": list(METHODS),
-                      "seeds": sorted({r["seed"] for r in rows}), "n_train": prof["n_train"],
-                      "n_test": prof["n_test"], "size": [prof["size"]] * 2, "profile": PROFILE,
-                      "overrides": {k: v for k, v in overrides.items() if v is not None},
-                      "setups": {setup.name: f"data/{setup.name}/setup.toml"}},
-                [{**base, **r} for r in rows])
+    study = {"name": "demo", "kind": "bench", "question": "How well do CompenNet and TPS compensate "
+             "the default setup, on held-out pairs and in closed loop?",
+             "base": "default", "axes": [], "methods": list(METHODS),
+             "seeds": sorted({r["seed"] for r in rows}), "n_train": prof["n_train"],
+             "n_test": prof["n_test"], "size": [prof["size"]] * 2, "profile": PROFILE,
+             "overrides": {k: v for k, v in overrides.items() if v is not None},
+             "setups": {setup.name: f"data/{setup.name}/setup.toml"}}
+    write_study_record(out, study)
+    write_results(out, (), [{**base, **r} for r in rows])
+
     report = build_report(out)
     reachable = results["uncompensated"]["reachable_fraction"]
     print(f"\nprocam demo: default setup, {PROFILE} profile ({prof['size']}² px, "

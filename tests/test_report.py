@@ -16,7 +16,8 @@ import pytest
 from compensation.cli import main
 from compensation.evaluation.charts import pareto_front, speed_points
 from compensation.evaluation.report import build_report, load_folder
-from compensation.evaluation.summary import RESULT_COLUMNS, summarize
+from compensation.evaluation.jobs import RESULT_COLUMNS
+from compensation.evaluation.summary import summarize
 from sim.errors import ProcamError
 from sim.io import write_png
 from tests.synthetic import make_dataset
@@ -62,8 +63,7 @@ def make_study(folder: Path) -> Path:
                 if method == "tps" and point == 2:  # seed 1 below uncompensated: a failure
                     value = 15.5 if seed else 17.5
                 rows.append(_row(point, method, seed, value))
-    columns = list(RESULT_COLUMNS)
-    columns.insert(1, AXIS)
+    columns = ["point", AXIS, *RESULT_COLUMNS]
     with open(folder / "results.csv", "w", newline="") as f:
         w = csv.DictWriter(f, columns, restval="")
         w.writeheader()
@@ -291,14 +291,15 @@ def test_bench_results_with_tables(tmp_path):
 
 def test_axis_on_n_train_round_trip(tmp_path):
     """An axis on n_train is the n_train column itself: written once, read back as an integer."""
-    from compensation.evaluation.summary import read_results, write_study
+    from compensation.evaluation.jobs import write_results, write_study_record
+    from compensation.evaluation.summary import read_results
 
     rows = [{"point": p, "setup": "s", "method": "tps", "n_train": n, "seed": 0, "status": "ok",
              "cl_psnr": 20.0 + p, "cl_unc_psnr": 17.0, "fit_s": 0.123456789} for p, n in enumerate((8, 16))]
-    files = write_study(tmp_path, {"name": "t", "kind": "study", "axes": [{"key": "n_train", "values": [8, 16]}]},
-                        rows)
+    write_study_record(tmp_path, {"name": "t", "kind": "study", "axes": [{"key": "n_train", "values": [8, 16]}]})
+    results = write_results(tmp_path, ["n_train"], rows)
     header = (tmp_path / "results.csv").read_text().splitlines()[0].split(",")
     assert header.count("n_train") == 1 and header[:2] == ["point", "setup"]
-    back = read_results(files["results"], ["n_train"])
-    assert [r["n_train"] for r in back] == [8, 16] and back[0]["fit_s"] == 0.123456789
+    back = read_results(results, ["n_train"])
+    assert [r["n_train"] for r in back] == [8, 16] and abs(back[0]["fit_s"] - 0.123457) < 1e-9
     assert json.loads((tmp_path / "study.json").read_text())["versions"]["python"]

@@ -14,7 +14,8 @@ import imageio.v3 as iio
 import pytest
 
 from compensation.cli import main
-from compensation.evaluation.jobs import RESULT_COLUMNS, STATUSES, run_status
+from compensation.evaluation.jobs import RESULT_COLUMNS, run_status
+from compensation.evaluation.summary import STATUSES
 from compensation.evaluation.studies import expand, load_study, run_study, with_overrides
 from compensation.methods import METHODS
 from sim.errors import ProcamError

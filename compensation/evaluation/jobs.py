@@ -32,7 +32,9 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from compensation.data import load_setup_data
+from compensation.evaluation.closed_loop import CAPTURES_DIR, N_CAPTURES
 from compensation.evaluation.metrics import evaluate
+from compensation.evaluation.summary import STATUSES
 from compensation.evaluation.official import official_complete, official_tag, write_official_outputs
 from compensation.training.config import TrainConfig
 from compensation.training.runs import load_run, package_version, scores_are_current, train_run
@@ -41,15 +43,10 @@ from sim.errors import ProcamError
 from sim.io import atomic_write, read_json, to_uint8, write_json, write_png
 from sim.setup import Setup
 
-N_CAPTURES = 4
-"""Closed-loop captures saved per run (of the first test images), ``<run>/closed_loop/img_XXXX.png``."""
 DIVERGED_RATIO = 1.5
 """A run whose last logged training loss exceeds this multiple of its first has diverged."""
 SCORES = ("psnr", "rmse", "ssim", "deltaE")
 """Scores of a run (:func:`~compensation.evaluation.metrics.evaluate`), in column order."""
-STATUSES = ("ok", "failed", "nan", "diverged")
-"""A result row's ``status``: finished; raised an error (``error`` says which); a score is not
-finite; the training loss grew (:data:`DIVERGED_RATIO`) or is not finite."""
 
 
 def _column(score: str) -> str:
@@ -150,7 +147,7 @@ def _closed_loop_done(run_dir: Path, metrics: dict) -> bool:
     scores = metrics.get("closed_loop", {})
     shown = min(N_CAPTURES, metrics.get("n_test", 0))
     return (all(k in scores for k in (*SCORES, "psnr_reachable"))
-            and all((run_dir / "closed_loop" / image_name(i)).exists() for i in range(1, shown + 1)))
+            and all((run_dir / CAPTURES_DIR / image_name(i)).exists() for i in range(1, shown + 1)))
 
 
 def add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:
@@ -158,15 +155,14 @@ def add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:
     of :func:`~compensation.evaluation.closed_loop.closed_loop` and ``seconds``), the captures of
     the first :data:`N_CAPTURES` test images written to ``run_dir/closed_loop/img_XXXX.png``
     (canonical view). Returns the metrics."""
-    from compensation.evaluation.closed_loop import closed_loop, simulator_for
+    from compensation.evaluation.closed_loop import closed_loop, simulator_for, write_captures
 
     method, _ = load_run(run_dir)
     data = load_setup_data(setup_dir, n_train=1, n_test=n_test)
     t0 = time.perf_counter()
     scores, captured = closed_loop(method, data, simulator_for(setup_dir), return_captures=True)
     scores["seconds"] = round(time.perf_counter() - t0, 3)
-    for i, image in enumerate(captured[:N_CAPTURES].permute(0, 2, 3, 1).numpy(), start=1):
-        write_png(run_dir / "closed_loop" / image_name(i), to_uint8(image))
+    write_captures(run_dir, captured)
     metrics = read_json(run_dir / "metrics.json", "run metrics")
     metrics["closed_loop"] = scores
     write_json(run_dir / "metrics.json", metrics)

@@ -2,7 +2,7 @@
 
 ``results.csv`` holds one row per (point, setup, method, n_train, seed): the point's axis values,
 the run's ``status`` and its scores (surrogate, closed loop, uncompensated, oracle) and timings
-(:data:`RESULT_COLUMNS`; missing values are empty cells). From it:
+(:data:`compensation.evaluation.jobs.RESULT_COLUMNS`; missing values are empty cells). From it:
 
 ``summary.csv``
     mean and standard deviation over seeds (and setups) per (point, method, n_train), ``ok`` runs
@@ -19,9 +19,6 @@ from __future__ import annotations
 import csv
 import io
 import math
-import platform
-from datetime import datetime, timezone
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
@@ -36,10 +33,10 @@ SCORES = (*METRICS, *(f"cl_{m}" for m in METRICS), *(f"unc_{m}" for m in METRICS
           "cl_unc_psnr", "cl_unc_ssim", "cl_unc_deltae", "oracle_psnr", "oracle_ssim", "oracle_deltae",
           "fit_s", "infer_ms")
 """The numeric columns of ``results.csv`` (empty cells read as NaN)."""
-RESULT_COLUMNS = ("point", "setup", "method", "n_train", "seed", "status", "error", *SCORES, "run")
-"""Columns of ``results.csv`` besides the axis columns (which follow ``point``)."""
 STATUSES = ("ok", "failed", "nan", "diverged")
-"""Values of the ``status`` column."""
+"""Values of the ``status`` column: finished; raised an error (``error`` says which); a score is not
+finite; the training loss grew (:data:`compensation.evaluation.jobs.DIVERGED_RATIO`) or is not
+finite."""
 BREAK_GAIN_DB = 1.0
 """A method breaks where its closed-loop PSNR gain over uncompensated falls below this (dB)."""
 
@@ -416,43 +413,3 @@ def break_columns(axes: list[str]) -> list[str]:
 def failure_columns(axes: list[str]) -> list[str]:
     """Columns of ``failures.csv``: the axis keys after ``point``."""
     return list(dict.fromkeys([FAILURE_COLUMNS[0], *axes, *FAILURE_COLUMNS[1:]]))
-
-
-def result_columns(axes: list[str]) -> list[str]:
-    """Columns of ``results.csv``: the axis keys after ``point`` (an axis that is already a column,
-    such as ``n_train``, stays in its place)."""
-    return [RESULT_COLUMNS[0], *(a for a in axes if a not in RESULT_COLUMNS), *RESULT_COLUMNS[1:]]
-
-
-def versions() -> dict[str, str]:
-    """Versions of procam, torch, mitsuba and Python for ``study.json`` (``unknown`` where a
-    package is not installed as a distribution)."""
-    found = {}
-    for name in ("procam", "torch", "mitsuba"):
-        try:
-            found[name] = version(name)
-        except PackageNotFoundError:
-            found[name] = "unknown"
-    return {**found, "python": platform.python_version()}
-
-
-def write_study(folder: Path, study: dict, rows: list[dict]) -> dict[str, Path]:
-    """Write ``study.json`` (``study`` with ``versions`` and ``created`` filled in where absent)
-    and ``results.csv`` (``rows`` under the point, the axis columns and :data:`RESULT_COLUMNS`;
-    a missing value is an empty cell, floats exact), then the summaries of :func:`write_summaries`.
-
-    Returns
-    -------
-    dict
-        Paths by name: ``study``, ``results``, ``summary``, ``breakpoints``, ``failures``.
-    """
-    folder = Path(folder)
-    study = {"versions": versions(), "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-             **study}
-    write_json(folder / "study.json", study)
-    axes = axis_keys(study)
-    columns = result_columns(axes)
-    files = {"study": folder / "study.json",
-             "results": write_csv(folder / "results.csv", columns,
-                                  [{c: r.get(c, float("nan")) for c in columns} for r in rows], None)}
-    return {**files, **write_summaries(folder, study, rows)}

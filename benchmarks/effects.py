@@ -1,0 +1,148 @@
+"""Per-effect table: what each hardware effect of the default setup costs each method, alone.
+
+The base is ``scenes/default.toml`` (the paper's hardware) with every hardware effect turned off
+(pinhole projector lens, steady lamp, perfect box-filtered RGB camera, manual exposure, exact
+registration); each row turns ONE effect back on at the default setup's own magnitude (those of
+``scenes/paper.toml``, with their sources in the file); the last row is the default setup itself.
+Every setup is rendered and benchmarked by ``procam bench`` (Table 1 jobs at one training size,
+closed loop on); this script then writes, per method, the change in dB against the base, surrogate
+(π†(x̃) against x) and closed loop (the compensation projected back through the setup)::
+
+    .venv/bin/python benchmarks/effects.py --out OUT [--size 64 --n-train 125 --n-test 50 --iters 300]
+
+Writes ``OUT/effects.md`` and ``OUT/effects.csv`` beside the bench's own files (``OUT/results.csv``,
+``OUT/table1.md``, ``OUT/report.html`` after ``procam report OUT``). Resumable like the bench.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import math
+from pathlib import Path
+
+from compensation.evaluation.bench import BenchConfig, run_bench
+from sim.io import write_text
+from sim.setup import load_setup, scene_path
+
+METHODS = ("tps", "tps-textured", "nayar", "compennet")
+EFFECTS = {  # row name -> (section, key) pairs taken from the default setup
+    "projector lens PSF": (("projector", "psf_sigma"),),
+    "projector defocus": (("projector", "aperture"),),
+    "lamp flicker": (("projector", "flicker"),),
+    "lamp drift": (("projector", "drift"),),
+    "camera PSF": (("camera", "psf_sigma"),),
+    "Bayer mosaic + demosaic": (("camera", "bayer"),),
+    "vignetting": (("camera", "vignetting"),),
+    "lens distortion": (("camera", "distortion"),),
+    "JPEG": (("camera", "jpeg_quality"),),
+    "exposure rule": (("camera", "exposure_mode"),),
+    "estimated homography": (("registration", "method"),),
+}
+OFF = {("projector", "psf_sigma"): 0.0, ("projector", "aperture"): 0.0, ("projector", "flicker"): 0.0,
+       ("projector", "drift"): 0.0, ("camera", "psf_sigma"): 0.0, ("camera", "bayer"): "none",
+       ("camera", "vignetting"): 0.0, ("camera", "distortion"): 0.0, ("camera", "jpeg_quality"): 0,
+       ("camera", "exposure_mode"): "manual", ("registration", "method"): "exact"}
+"""Each effect's off value."""
+
+
+def _with(setup, name: str, values: dict):
+    """``setup`` renamed, with ``{(section, key): value}`` replaced."""
+    sections = {}
+    for (section, key), value in values.items():
+        sections.setdefault(section, {})[key] = value
+    return dataclasses.replace(setup, name=name, **{
+        s: dataclasses.replace(getattr(setup, s), **kv) for s, kv in sections.items()})
+
+
+def setups() -> list:
+    """The base, one setup per effect, and the default setup (all effects), in table order."""
+    default = load_setup(scene_path("default"))
+    base = _with(default, "effects_base", OFF)
+    out = [base]
+    for i, (row, keys) in enumerate(EFFECTS.items(), start=1):
+        on = {k: getattr(getattr(default, k[0]), k[1]) for k in keys}
+        out.append(_with(base, f"effects_{i:02d}", on))
+    out.append(dataclasses.replace(default, name="effects_all"))
+    return out
+
+
+def _number(text: str) -> float:
+    return float(text) if text not in ("", None) else math.nan
+
+
+def table(results: Path) -> list[dict]:
+    """Per setup and method, the change against the base (dB) of surrogate and closed-loop PSNR,
+    and of the uncompensated captures."""
+    with open(results, newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r.get("table", "1") == "1"]
+    score = {(r["setup"], r["method"]): r for r in rows}
+    names = ["base (all effects off)", *EFFECTS, "all (the default setup)"]
+    order = [s.name for s in setups()]
+    out = []
+    for name, setup in zip(names, order):
+        line = {"effect": name, "setup": setup}
+        first = next((r for (s, _), r in score.items() if s == setup), None)
+        base_first = next((r for (s, _), r in score.items() if s == "effects_base"), None)
+        if first is None or base_first is None:
+            continue
+        for key, col in (("unc_psnr", "uncompensated"), ("cl_unc_psnr", "uncompensated CL")):
+            line[col] = _number(first[key]) - (0 if setup == "effects_base" else _number(base_first[key]))
+        for m in METHODS:
+            r, b = score.get((setup, m)), score.get(("effects_base", m))
+            for key, suffix in (("psnr", ""), ("cl_psnr", " CL")):
+                value = math.nan if r is None or r["status"] != "ok" else _number(r[key])
+                ref = 0.0 if setup == "effects_base" else (
+                    math.nan if b is None or b["status"] != "ok" else _number(b[key]))
+                line[m + suffix] = value - ref
+        out.append(line)
+    return out
+
+
+def write(out: Path, lines: list[dict], how: str) -> None:
+    """``effects.csv`` and ``effects.md`` (the base row in absolute dB, the others as changes)."""
+    cols = ["effect", "uncompensated", "uncompensated CL", *(f"{m}{s}" for m in METHODS for s in ("", " CL"))]
+    text = [",".join(cols)] + [",".join(l["effect"] if c == "effect" else f"{l.get(c, math.nan):.2f}"
+                                        for c in cols) for l in lines]
+    write_text(out / "effects.csv", "\n".join(text) + "\n")
+    md = ["# Per-effect table: PSNR change (dB) against the base, surrogate / closed loop (CL)", "",
+          how, "",
+          "| effect | uncompensated | " + " | ".join(METHODS) + " |",
+          "|---|---|" + "---|" * len(METHODS)]
+    for l in lines:
+        sign = "" if l["setup"] == "effects_base" else "+"
+
+        def pair(a, b):
+            return f"{l.get(a, math.nan):{sign}.2f} / {l.get(b, math.nan):{sign}.2f}"
+        md.append(f"| {l['effect']} | {pair('uncompensated', 'uncompensated CL')} | "
+                  + " | ".join(pair(m, m + ' CL') for m in METHODS) + " |")
+    write_text(out / "effects.md", "\n".join(md) + "\n")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, type=Path)
+    ap.add_argument("--size", type=int, default=64, help="canonical pixels")
+    ap.add_argument("--n-train", type=int, default=125)
+    ap.add_argument("--n-test", type=int, default=50)
+    ap.add_argument("--iters", type=int, default=None, help="CompenNet iterations (default: quick profile)")
+    ap.add_argument("--only", help="comma-separated setup names (effects_base is always included)")
+    args = ap.parse_args()
+    suite = setups()
+    if args.only:
+        keep = {"effects_base", *args.only.split(",")}
+        suite = [s for s in suite if s.name in keep]
+    overrides = {"iters": args.iters} if args.iters else {}
+    cfg = BenchConfig(profile="quick", methods=METHODS, sizes=(args.n_train,), tables=("1",),
+                      size=args.size, n_test=args.n_test, overrides=overrides, closed_loop=True)
+    run_bench(suite, args.out, cfg)
+    how = (f"`python benchmarks/effects.py --out {args.out} --size {args.size} --n-train {args.n_train} "
+           f"--n-test {args.n_test}" + (f" --iters {args.iters}" if args.iters else "") + "`: "
+           f"{args.size}² canonical, {args.n_train} training / {args.n_test} test pairs, quick profile"
+           + (f", CompenNet {args.iters} iterations" if args.iters else "") + ". Base row: absolute dB.")
+    write(args.out, table(args.out / "results.csv"), how)
+    print((args.out / "effects.md").read_text())
+
+
+if __name__ == "__main__":
+    main()
