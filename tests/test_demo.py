@@ -11,12 +11,13 @@ from compensation.demo import METHODS, N_FIGURE, ORACLE_ITERATIONS, run_demo
 SMALL = dict(size=32, n_train=8, n_test=N_FIGURE, iters=10, batch=4)
 """32² with 8 training pairs; CompenNet trains 10 iterations (TPS takes neither)."""
 TPS_SURROGATE_MARGIN_DB = 6.0
-"""TPS surrogate PSNR (π†(x̃) vs x) above uncompensated (measured +10.0 dB)."""
-CLOSED_LOOP_MARGIN_DB = 3.0
-"""Closed-loop PSNR of TPS and of the feedback oracle above y projected as is (measured +4.1 and
-+4.3 dB; most desired pixels of the default setup are out of reach at this size)."""
-REACHABLE_MARGIN_DB = 10.0
-"""The same on the reachable pixels only (measured +16 and +20 dB)."""
+"""TPS surrogate PSNR (π†(x̃) vs x) above uncompensated (measured +12.8 dB on the default setup,
+the paper's hardware)."""
+CLOSED_LOOP_MARGIN_DB = 1.0
+"""Closed-loop PSNR of TPS and of the feedback oracle above y projected as is (measured +1.8 and
++2.0 dB: only 29 % of the desired pixels are within the projector's reach on the default setup)."""
+REACHABLE_MARGIN_DB = 4.0
+"""The same on the reachable pixels only (measured +6.4 and +8.0 dB)."""
 
 
 def test_demo_tiny(tmp_path, capsys):
@@ -41,8 +42,8 @@ def test_demo_tiny(tmp_path, capsys):
     assert oracle["psnr"] > unc["psnr"] + CLOSED_LOOP_MARGIN_DB
     assert oracle["psnr_reachable"] > unc["psnr_reachable"] + REACHABLE_MARGIN_DB
     # CompenNet is only run here: 10 iterations on 8 pairs do not beat uncompensated on the rendered
-    # setup (even 60 at batch 8 reach 17.0 vs 17.7 dB); its margin is held on the synthetic setup by
-    # tests/test_methods_contract.py.
+    # setup (measured 11.9 dB in closed loop against 14.0); its margin is held on the synthetic setup
+    # by tests/test_methods_contract.py.
     assert results["compennet"]["train_seconds"] > 0
 
     assert json.loads((tmp_path / "demo.json").read_text()).keys() == results.keys()
