@@ -80,7 +80,7 @@ def test_run_directory(run, setup_dir, data):
     assert config["train"] == {**tiny_config().to_dict(), "n_train": 16, "n_test": 4}
     assert config["train"]["options"] == {"iters": 200, "batch": 8, "lr": 1e-3, "weight_decay": 1e-4,
                                           "lr_step": 800, "lr_gamma": 0.2, "loss": "l1+ssim",
-                                          "sampler": "epoch", "amp": False, "init": None}
+                                          "sampler": "epoch", "amp": False, "init": None, "patch": 0}
     assert TrainConfig.from_dict(config["train"]) == replace(tiny_config(), n_train=16, n_test=4)
     assert config["dataset"] == str(setup_dir.resolve())
     assert config["image_size"] == {"width": 32, "height": 32} and run_size(config) == (32, 32)
