@@ -344,10 +344,11 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     ``cfg.options.amp``, autocast plus a gradient scaler (fp16 only); on the CPU the amp flag
     changes nothing.
 
-    The network and the images are kept in the channels-last memory layout while training (on
-    the CPU about 1.3–1.4× faster for CompenNet's convolutions at 128² and 256²; also the layout
-    of CUDA's tensor-core convolutions); the values are those of the default layout to float
-    rounding, and the model is returned in the default layout.
+    The network and the images are kept in the channels-last memory layout while training
+    (oneDNN's native layout on the CPU, faster for CompenNet's convolutions as
+    ``benchmarks/train.py`` measures; also the layout of CUDA's tensor-core convolutions); the
+    values are those of the default layout to float rounding, and the model is returned in the
+    default layout.
 
     Returns
     -------
