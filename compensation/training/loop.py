@@ -345,10 +345,9 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     changes nothing.
 
     The network and the images are kept in the channels-last memory layout while training
-    (oneDNN's native layout on the CPU, faster for CompenNet's convolutions as
-    ``benchmarks/train.py`` measures; also the layout of CUDA's tensor-core convolutions); the
-    values are those of the default layout to float rounding, and the model is returned in the
-    default layout.
+    (oneDNN's native layout on the CPU, ``benchmarks/train.py`` measures its effect; the layout of
+    CUDA's tensor-core convolutions); the values are those of the default layout to float
+    rounding, and the model is returned in the default layout.
 
     Returns
     -------
