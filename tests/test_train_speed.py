@@ -163,3 +163,18 @@ def test_patch_training_learns(setup_dir, tmp_path):
     train_run(setup_dir, cfg, out, progress=False)
     scores = json.loads((out / "metrics.json").read_text())
     assert scores["psnr"] > scores["uncompensated"]["psnr"] + 3.0
+
+
+def test_patch_training_resumes_bit_identically(data, tmp_path):
+    """The crop windows' random state is part of the training checkpoint."""
+    def fit(iters, checkpoint=None):
+        method = get_method("compennet")(device="cpu")
+        cfg = TrainConfig(method="compennet", options=CompenNetOptions(iters=iters, batch=4, patch=16),
+                          seed=1, device="cpu")
+        return method.fit(data, cfg, progress=False, checkpoint=checkpoint), method.model.state_dict()
+
+    straight, weights = fit(6)
+    fit(3, tmp_path / "state.pt")  # stops after 3 iterations, its state saved
+    resumed, resumed_weights = fit(6, tmp_path / "state.pt")
+    assert resumed["loss_curve"] == straight["loss_curve"]
+    assert all(torch.equal(resumed_weights[k], v) for k, v in weights.items())
