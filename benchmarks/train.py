@@ -1,55 +1,117 @@
-"""Training benchmark: CompenNet samples/second with the surface branch run per sample (naive)
-against once per batch and broadcast (ours), side by side in one run; then the `quick` profile's
-training time and test PSNR/SSIM on the default setup.
+"""Training benchmark: CompenNet samples/second of the naive loop against procam's, each speed-up
+as a step of its own, measured side by side in one run (the steps take turns, one training step
+each per round, and each reports its median), so a machine shared with other jobs slows them alike.
 
-    .venv/bin/python benchmarks/train.py [--sizes 128,256] [--batch 16] [--steps 5] [--data out/data]
+Steps (each adds to the one above):
+
+* ``naive``: the surface branch run per sample (s̃ repeated over the batch), default memory layout,
+  pytorch-msssim's SSIM in the loss;
+* ``surface once``: s̃ with batch 1, encoded once per batch and broadcast;
+* ``channels_last``: network and images in the channels-last memory layout;
+* ``ssim``: procam's SSIM (per-channel 1-D Gaussian passes in the channels-last layout);
+* ``inplace relu``: in-place ReLUs — procam's training step (:func:`fit_network`);
+* ``compile`` (``--compile``): ``torch.compile`` of the network on top.
+
+Then, with ``--data``, the `quick` profile's training time and test PSNR/SSIM on the default setup.
+
+    .venv/bin/python benchmarks/train.py [--sizes 128,256] [--batches 16,8] [--rounds 7]
+                                         [--threads N] [--compile] [--data out/data]
 """
 from __future__ import annotations
 
 import argparse
+import copy
+import os
+import statistics
 import time
 from pathlib import Path
 
+import pytorch_msssim
 import torch
+import torch.nn.functional as F
 
-from compensation.evaluation.losses import get_loss
+from compensation.evaluation.losses import l1, l1_ssim
+from compensation.evaluation.metrics import gaussian_window
 from compensation.methods.compennet import CompenNet
 
+STEPS = ("naive", "surface once", "channels_last", "ssim", "inplace relu", "compile")
+"""The measured steps, in order; each adds one speed-up to the one before."""
 
-def samples_per_second(size: int, batch: int, steps: int, naive: bool) -> float:
-    """Training steps (forward, ℓ1+SSIM, backward, Adam) per second × batch."""
-    torch.manual_seed(0)
-    model = CompenNet(surface=True)
+
+def previous_l1_ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The loss before procam's SSIM: ℓ1 + 1 − pytorch-msssim's SSIM of the edge-padded images."""
+    padded = [F.pad(t, (5,) * 4, mode="replicate") for t in (pred, target)]
+    win = gaussian_window().repeat(pred.shape[1], 1, 1, 1)
+    return l1(pred, target) + 1 - pytorch_msssim.ssim(*padded, data_range=1.0, win=win)
+
+
+def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: torch.Tensor):
+    """One training step (forward, ℓ1+SSIM, backward, Adam) of the step ``name`` of :data:`STEPS`."""
+    level = STEPS.index(name)
+    model = copy.deepcopy(base)
+    for m in model.modules():
+        if isinstance(m, torch.nn.ReLU):
+            m.inplace = level >= STEPS.index("inplace relu")
+    if level == 0:
+        s = s.expand(x.shape[0], -1, -1, -1).contiguous()  # per sample
+    if level >= STEPS.index("channels_last"):
+        layout = torch.channels_last
+        model = model.to(memory_format=layout)
+        x, y, s = (t.contiguous(memory_format=layout) for t in (x, y, s))
+    loss_fn = l1_ssim if level >= STEPS.index("ssim") else previous_l1_ssim
+    forward = torch.compile(model) if name == "compile" else model
     opt = torch.optim.Adam(model.parameters(), lr=1e-3, weight_decay=1e-4)
-    loss_fn = get_loss("l1+ssim")
-    x = torch.rand(batch, 3, size, size)
-    y = torch.rand(batch, 3, size, size)
-    s = torch.rand(1, 3, size, size)
-    s_in = s.expand(batch, -1, -1, -1).contiguous() if naive else s  # per sample vs broadcast
-    for step in range(steps + 1):
-        if step == 1:
-            t0 = time.perf_counter()  # the first step warms up the allocator
-        opt.zero_grad()
-        loss = loss_fn(model(x, s_in), y)
+
+    def step() -> float:
+        opt.zero_grad(set_to_none=True)
+        loss = loss_fn(forward(x, s), y)
         loss.backward()
         opt.step()
-    return steps * batch / (time.perf_counter() - t0)
+        return loss.item()
+    return step
+
+
+def compare(size: int, batch: int, rounds: int, steps: tuple[str, ...]) -> dict[str, float]:
+    """Median samples/second of each step, the steps taking turns for ``rounds`` rounds."""
+    torch.manual_seed(0)
+    base = CompenNet(surface=True)
+    x, y, s = torch.rand(batch, 3, size, size), torch.rand(batch, 3, size, size), torch.rand(1, 3, size, size)
+    runs = {name: make_step(name, base, x, y, s) for name in steps}
+    for run in runs.values():  # warm-up: allocator, oneDNN primitives, compilation
+        run()
+    seconds = {name: [] for name in steps}
+    for _ in range(rounds):
+        for name, run in runs.items():
+            start = time.perf_counter()
+            run()
+            seconds[name].append(time.perf_counter() - start)
+    return {name: batch / statistics.median(t) for name, t in seconds.items()}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", default="128,256")
-    ap.add_argument("--batch", type=int, default=16)
-    ap.add_argument("--steps", type=int, default=5)
+    ap.add_argument("--batches", default="16,8", help="batch per size")
+    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    ap.add_argument("--compile", action="store_true", help="also time torch.compile (slow to build)")
     ap.add_argument("--data", default=None, help="a dataset root with default/ rendered at the quick "
                     "profile (e.g. the demo's out/data): also time the quick profile on it")
     args = ap.parse_args()
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, batch {args.batch}")
-    print(f"{'size':>6}{'naive samples/s':>18}{'ours samples/s':>16}{'ratio':>8}")
-    for size in (int(s) for s in args.sizes.split(",")):
-        naive = samples_per_second(size, args.batch, args.steps, naive=True)
-        ours = samples_per_second(size, args.batch, args.steps, naive=False)
-        print(f"{size:>6}{naive:>18.2f}{ours:>16.2f}{ours / naive:>8.2f}")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    steps = STEPS if args.compile else STEPS[:-1]
+    sizes = [int(v) for v in args.sizes.split(",")]
+    batches = [int(v) for v in args.batches.split(",")]
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, {os.cpu_count()} CPUs, "
+          f"load average before {os.getloadavg()[0]:.1f}; samples/s (× naive), median of "
+          f"{args.rounds} interleaved steps")
+    print(f"{'size':>5}{'batch':>6}" + "".join(f"{name:>20}" for name in steps))
+    for size, batch in zip(sizes, batches * len(sizes) if len(batches) == 1 else batches):
+        rates = compare(size, batch, args.rounds, steps)
+        cells = [f"{rates[n]:.2f} ({rates[n] / rates['naive']:.2f}×)" for n in steps]
+        print(f"{size:>5}{batch:>6}" + "".join(f"{c:>20}" for c in cells), flush=True)
+    print(f"load average after {os.getloadavg()[0]:.1f}")
     if args.data:
         import tempfile
 

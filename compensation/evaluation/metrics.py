@@ -24,8 +24,8 @@ Two SSIM conventions differ in which window positions the map holds (:data:`SSIM
 
 The border counts for a larger share of small images: on the 100 test captures of the shipped
 default setup at 64² (uncompensated, against the frames) the official SSIM is 0.5501, scikit-image's
-0.5798. Both run pytorch-msssim's valid window over the (padded or unpadded) images with a float64
-window (:func:`gaussian_window`), so float64 values agree with scikit-image to about 1e-15.
+0.5798. Both run the valid window over the (padded or unpadded) images as two 1-D passes of a float64
+Gaussian (:func:`gaussian_window`), so float64 values agree with scikit-image to about 1e-15.
 
 Unlike the official code, nothing is dropped when N is not a multiple of the batch size:
 :func:`evaluate` streams over batches, accumulating the squared-error sum and the per-image SSIM and
@@ -37,7 +37,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytorch_msssim
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -50,11 +49,10 @@ WIN_SIGMA = 1.5
 
 
 def gaussian_window(size: int = WIN_SIZE, sigma: float = WIN_SIGMA) -> Tensor:
-    """Normalised 1-D Gaussian SSIM window, float64, shaped (1, 1, 1, size) for pytorch-msssim.
+    """Normalised 1-D Gaussian SSIM window, float64, shaped (1, 1, 1, size) (a horizontal kernel).
 
-    Built in float64 because pytorch-msssim's own window is computed and normalised in float32,
-    which moves float64 SSIM values by about 1e-6 from scikit-image's; pytorch-msssim casts the
-    window to the images' dtype.
+    Built in float64 (a window normalised in float32 moves float64 SSIM values by about 1e-6 from
+    scikit-image's); :func:`gaussian_filter` casts it to the images' dtype.
 
     Examples
     --------
@@ -74,19 +72,55 @@ SSIM_CONVENTIONS = ("official", "skimage")
 scikit-image's (window positions inside the image only); see the module docstring."""
 
 
+def gaussian_filter(images: Tensor) -> Tensor:
+    """Valid 11×11 Gaussian filtering of every channel: a vertical then a horizontal 1-D pass.
+
+    The separable form of the 2-D window (the outer product of :func:`gaussian_window` with
+    itself): 22 instead of 121 multiply-adds per pixel, one grouped (per-channel) convolution per
+    pass.
+
+    Parameters
+    ----------
+    images : Tensor
+        (N, C, H, W) with H and W at least :data:`WIN_SIZE`.
+
+    Returns
+    -------
+    Tensor
+        (N, C, H − 10, W − 10): the window's weighted mean at every position that fits inside.
+
+    Examples
+    --------
+    >>> x = torch.zeros(1, 1, 11, 11, dtype=torch.float64)
+    >>> x[0, 0, 5, 5] = 1.0  # the filtered centre is the window's central weight squared
+    >>> bool(torch.isclose(gaussian_filter(x)[0, 0, 0, 0], gaussian_window()[0, 0, 0, 5] ** 2))
+    True
+    """
+    channels = images.shape[1]
+    win = _WINDOW.to(images.device, images.dtype)
+    vertical = win.reshape(1, 1, WIN_SIZE, 1).repeat(channels, 1, 1, 1)
+    horizontal = win.repeat(channels, 1, 1, 1)
+    out = F.conv2d(images, vertical, groups=channels)
+    return F.conv2d(out, horizontal, groups=channels)
+
+
 def structural_similarity(pred: Tensor, target: Tensor, per_image: bool = False,
                           convention: str = "official") -> Tensor:
     """Structural similarity (1 for identical images), mean over RGB channels and images.
 
-    pytorch-msssim's SSIM with an 11×11 Gaussian window (:func:`gaussian_window`, σ = 1.5
-    pixels), data range 1, K = (0.01, 0.03), averaged over the SSIM map of each channel; under the
-    ``"official"`` convention the images are first padded by 5 pixels by edge replication (see the
-    module docstring). Differentiable: the SSIM losses build on it.
+    SSIM with an 11×11 Gaussian window (:func:`gaussian_window`, σ = 1.5 pixels, applied by
+    :func:`gaussian_filter`), data range 1, C1 = 0.01², C2 = 0.03², averaged over the SSIM map of
+    each channel; under the ``"official"`` convention the images are first padded by 5 pixels by
+    edge replication (see the module docstring). The five local moments (means, second moments,
+    cross moment) are filtered in the channels-last memory layout, where the per-channel
+    convolutions run fastest on the CPU (forward and backward together measured 1.5–1.9× faster
+    than in the default layout at 128² and 256² on 2 cores); the values do not depend on the
+    layout. Differentiable: the SSIM losses build on it.
 
     Parameters
     ----------
     pred, target : Tensor
-        (N, C, H, W) images in [0, 1]; under ``"skimage"`` H and W at least 11 pixels.
+        (N, C, H, W) images in [0, 1]; under ``"skimage"`` H and W at least 11.
     per_image : bool
         Return the (N,) SSIM of each image (mean over its channels) instead of the batch mean.
     convention : str
@@ -97,8 +131,7 @@ def structural_similarity(pred: Tensor, target: Tensor, per_image: bool = False,
     ------
     ValueError
         If the convention is unknown, the shapes differ, or an image is smaller than the 11×11
-        window under ``"skimage"`` (pytorch-msssim would silently skip the smoothing along that
-        axis).
+        window under ``"skimage"``.
 
     Examples
     --------
@@ -125,8 +158,17 @@ def structural_similarity(pred: Tensor, target: Tensor, per_image: bool = False,
     if convention == "official":
         border = (WIN_SIZE // 2,) * 4
         pred, target = F.pad(pred, border, mode="replicate"), F.pad(target, border, mode="replicate")
-    win = _WINDOW.repeat(pred.shape[1], 1, 1, 1)  # one window per channel (grouped convolution)
-    return pytorch_msssim.ssim(pred, target, data_range=1.0, size_average=not per_image, win=win)
+    pred = pred.contiguous(memory_format=torch.channels_last)
+    target = target.contiguous(memory_format=torch.channels_last)
+    mu1, mu2 = gaussian_filter(pred), gaussian_filter(target)
+    pred_sq, target_sq = gaussian_filter(pred * pred), gaussian_filter(target * target)
+    cross = gaussian_filter(pred * target)
+    mu1_sq, mu2_sq, mu12 = mu1 * mu1, mu2 * mu2, mu1 * mu2
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    contrast_structure = (2 * (cross - mu12) + c2) / ((pred_sq - mu1_sq) + (target_sq - mu2_sq) + c2)
+    ssim_map = (2 * mu12 + c1) / (mu1_sq + mu2_sq + c1) * contrast_structure
+    per_channel = ssim_map.flatten(2).mean(-1)
+    return per_channel.mean(1) if per_image else per_channel.mean()
 
 
 def _check_pair(pred: Tensor, target: Tensor) -> None:

@@ -58,6 +58,11 @@ def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
 
 
+SIZE_MULTIPLE = 4
+"""Image sides must be multiples of this (conv1 and conv2 halve the image, transConv1 and
+transConv2 double it back)."""
+
+
 def _check_images(name: str, t: Tensor) -> None:
     """Raise ``ValueError`` unless ``t`` is an (N, 3, H, W) tensor with H and W divisible by 4."""
     if not isinstance(t, Tensor):
@@ -69,7 +74,7 @@ def _check_images(name: str, t: Tensor) -> None:
         raise ValueError(f"CompenNet: {name} must be RGB with 3 channels, got {t.shape[1]} channels "
                          f"in shape {tuple(t.shape)}")
     h, w = t.shape[2:]
-    if h % 4 or w % 4 or h == 0 or w == 0:
+    if h % SIZE_MULTIPLE or w % SIZE_MULTIPLE or h == 0 or w == 0:
         raise ValueError(f"CompenNet: {name} height and width must be positive multiples of 4, "
                          f"got {h}x{w} (H x W)")
 
@@ -93,7 +98,7 @@ class CompenNet(nn.Module):
     def __init__(self, surface: bool = True):
         super().__init__()
         self.surface = surface
-        self.relu = nn.ReLU()
+        self.relu = nn.ReLU(inplace=True)  # every input is a fresh sum or convolution output
 
         self.conv1 = nn.Conv2d(3, 32, 3, 2, 1)
         self.conv2 = nn.Conv2d(32, 64, 3, 2, 1)
@@ -255,6 +260,13 @@ class CompenNetOptions(Options):
     """Run directory, or state dict file (``.pth``, e.g. an official CompenNet checkpoint, with or
     without DataParallel's ``module.`` prefix), whose weights initialise the network (pre-training;
     same architecture)."""
+    patch: int = 0
+    """Patch training: side in pixels of the random square window that every step cuts out of its
+    batch's captures, frames and surface alike (the same window for all three, so the pixel
+    correspondence is kept; the network is fully convolutional). 0 trains on the full images
+    (paper). Otherwise a multiple of :data:`SIZE_MULTIPLE` (the network halves the image twice
+    and doubles it back), at most the image's shorter side; the windows are seeded by the
+    training seed."""
 
     profiles: ClassVar[dict[str, dict]] = {
         "paper": {},
@@ -275,6 +287,9 @@ class CompenNetOptions(Options):
         self._require("weight_decay", self.weight_decay >= 0, "a number >= 0")
         self._require("loss", self.loss in LOSSES, f"one of {', '.join(LOSSES)}")
         self._require("sampler", self.sampler in ("epoch", "random"), "'epoch' or 'random'")
+        self._require("patch", isinstance(self.patch, int) and not isinstance(self.patch, bool)
+                      and self.patch >= 0 and self.patch % SIZE_MULTIPLE == 0,
+                      f"0 (full images) or a positive multiple of {SIZE_MULTIPLE} (pixels)")
 
 
 class CompenNetMethod(Method):
@@ -299,6 +314,10 @@ class CompenNetMethod(Method):
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
             checkpoint: Path | None = None) -> dict:
         self.device = resolve_device(cfg.device)
+        if cfg.options.patch > min(data.size):
+            raise ProcamError(f"option patch = {cfg.options.patch}: expected at most the image's "
+                              f"shorter side, {min(data.size)} pixels ({data.size[1]}x{data.size[0]}"
+                              f" W x H images in {data.name}), or 0 for full images")
         torch.manual_seed(cfg.seed)  # He init of the new network is seeded
         model = CompenNet(surface=self.surface)
         if cfg.options.init is not None:

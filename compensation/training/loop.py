@@ -100,6 +100,64 @@ class BatchSampler:
         self.pool = state["pool"].clone()
 
 
+CROP_STREAM = 1
+"""Second seed word of the crop windows of patch training (the first is the training seed), so
+that they never share a random state with the batch order."""
+
+
+class CropSampler:
+    """Endless random square windows of one side inside an image, seeded; checkpointable.
+
+    Every window lies fully inside the image and every position is equally likely. Patch
+    training cuts the same window out of the captures, the frames and the surface of a batch, so
+    the pixel correspondence between them is kept.
+
+    Parameters
+    ----------
+    height, width : int
+        Image size in pixels.
+    side : int
+        Window side in pixels, at most ``min(height, width)``.
+    seed : int
+        The training seed (combined with :data:`CROP_STREAM`).
+
+    Examples
+    --------
+    >>> crops = CropSampler(8, 12, 4, seed=0)
+    >>> windows = [next(crops) for _ in range(100)]
+    >>> all(0 <= top <= 4 and 0 <= left <= 8 for top, left in windows)
+    True
+    >>> again = CropSampler(8, 12, 4, seed=0)
+    >>> [next(again) for _ in range(100)] == windows
+    True
+    """
+
+    def __init__(self, height: int, width: int, side: int, seed: int):
+        if not 1 <= side <= min(height, width):
+            raise ValueError(f"crop side {side}: expected 1 to {min(height, width)} pixels for "
+                             f"{width}x{height} (W x H) images")
+        self.height, self.width, self.side = height, width, side
+        words = np.random.SeedSequence([seed, CROP_STREAM]).generate_state(2, np.uint32)
+        self.generator = torch.Generator().manual_seed(int(words[0]) << 32 | int(words[1]))
+
+    def __iter__(self) -> Iterator[tuple[int, int]]:
+        return self
+
+    def __next__(self) -> tuple[int, int]:
+        """The next window's (top, left) corner in pixels."""
+        top = torch.randint(self.height - self.side + 1, (), generator=self.generator)
+        left = torch.randint(self.width - self.side + 1, (), generator=self.generator)
+        return int(top), int(left)
+
+    def state_dict(self) -> dict:
+        """The generator state."""
+        return {"generator": self.generator.get_state()}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Continue exactly where :meth:`state_dict` was taken."""
+        self.generator.set_state(state["generator"])
+
+
 @dataclass(frozen=True)
 class LoopResult:
     """What :func:`train_loop` measured."""
@@ -280,8 +338,16 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
 
     Adam(lr, weight_decay), StepLR(lr_step, lr_gamma), batches as ``cfg.options.sampler``
     draws them, the loss named by ``cfg.options.loss``; with ``use_surface`` the network's surface
-    branch is fed s̃ with batch 1, broadcast over the batch. On CUDA with ``cfg.options.amp``, autocast plus a gradient
-    scaler (fp16 only); on the CPU the amp flag changes nothing.
+    branch is fed s̃ with batch 1, broadcast over the batch (computed once per batch, not once per
+    sample). With ``cfg.options.patch`` > 0 every step trains on one random window of that side cut
+    out of the batch's captures, frames and the surface alike (:class:`CropSampler`). On CUDA with
+    ``cfg.options.amp``, autocast plus a gradient scaler (fp16 only); on the CPU the amp flag
+    changes nothing.
+
+    The network and the images are kept in the channels-last memory layout while training
+    (oneDNN's native layout on the CPU, ``benchmarks/train.py`` measures its effect; the layout of
+    CUDA's tensor-core convolutions); the values are those of the default layout to float
+    rounding, and the model is returned in the default layout.
 
     Returns
     -------
@@ -294,17 +360,25 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     use_amp = opt.amp and device.type == "cuda"
     amp_dtype = _autocast_dtype() if use_amp else torch.float32
     scaler = torch.amp.GradScaler(device.type, enabled=use_amp and amp_dtype == torch.float16)
+    model.to(memory_format=torch.channels_last)
     optimizer = torch.optim.Adam(model.parameters(), lr=opt.lr, weight_decay=opt.weight_decay)
     scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=opt.lr_step, gamma=opt.lr_gamma)
     loss_fn = get_loss(opt.loss)
-    captures = data.train.captures.to(device)
-    frames = data.train.frames.to(device)
-    surface = data.surface.to(device) if use_surface else None
+    captures = _channels_last(data.train.captures.to(device))
+    frames = _channels_last(data.train.frames.to(device))
+    surface = _channels_last(data.surface.to(device)) if use_surface else None
+    crops = CropSampler(*captures.shape[2:], opt.patch, cfg.seed) if opt.patch else None
 
     def step(idx: torch.Tensor) -> torch.Tensor:
-        x, y = captures[idx], frames[idx]
+        x, y, s = captures[idx], frames[idx], surface
+        if crops is not None:
+            top, left = next(crops)
+            window = (..., slice(top, top + opt.patch), slice(left, left + opt.patch))
+            x, y = x[window], y[window]
+            s = s if s is None else s[window]
+        x, y, s = _channels_last(x), _channels_last(y), s if s is None else _channels_last(s)
         with torch.autocast(device.type, dtype=amp_dtype, enabled=use_amp):
-            pred = model(x, surface)
+            pred = model(x, s)
         loss = loss_fn(pred.float(), y)
         optimizer.zero_grad(set_to_none=True)
         scaler.scale(loss).backward()
@@ -317,10 +391,20 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     stateful = {"model": model, "optimizer": optimizer, "scheduler": scheduler}
     if scaler.is_enabled():
         stateful["scaler"] = scaler
+    if crops is not None:
+        stateful["crops"] = crops
     model.train()
-    result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device, ("loss", "lr"),
-                        f"train {cfg.method} on {data.name}", progress, stateful, checkpoint,
-                        sampler=opt.sampler)
+    try:
+        result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
+                            ("loss", "lr"), f"train {cfg.method} on {data.name}", progress, stateful,
+                            checkpoint, sampler=opt.sampler)
+    finally:
+        model.to(memory_format=torch.contiguous_format)
     return {"seconds": result.seconds, "samples_per_second": result.samples_per_second,
             "final_loss": result.final_loss, "batch": result.batch,
             "loss_curve": [(i + 1, v[0], v[1]) for i, v in enumerate(result.values)]}
+
+
+def _channels_last(images: torch.Tensor) -> torch.Tensor:
+    """``images`` (N, C, H, W) in the channels-last memory layout (no copy if already so)."""
+    return images.contiguous(memory_format=torch.channels_last)
