@@ -25,14 +25,14 @@ def load_script():
 @pytest.mark.slow
 def test_gpu_benchmark_dry_run_on_cpu(tmp_path, capsys):
     result = load_script().main(["--device", "cpu", "--size", "32", "--pairs", "8", "--iters", "2",
-                                 "--batch", "4", "--suite", str(SCENES / "default.toml"), "--setups", "1",
+                                 "--batch", "4", "--suite", str(SCENES / "ideal.toml"), "--setups", "1",
                                  "--frames", "2", "--out", str(tmp_path)])
     assert json.loads((tmp_path / "gpu.json").read_text()) == result
     training = result["training"]
     assert (training["iters"], training["batch"], training["amp"]) == (2, 4, False)
     assert training["samples_per_second"] > 0 and training["predict_seconds"] > 0
     render = result["render"]
-    assert [row["setup"] for row in render["setups"]] == ["default"]
+    assert [row["setup"] for row in render["setups"]] == ["ideal"]
     assert render["setups"][0]["captures"] == 2 + 1 + 126  # train, test, 125 plain colours + gray
     assert render["operator_nnz"] > 32 * 32 and set(render["project_seconds_per_frame"]) == {"cpu"}
     out = capsys.readouterr().out
