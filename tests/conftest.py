@@ -34,6 +34,25 @@ def tiny_setup(**sections):
     return parse_setup(data, source="<tiny>")
 
 
+
+def tiny_toml(name: str = "base", side: int = 32, texture: str = "noise") -> str:
+    """A tiny setup file's text (side² projector and camera, direct light at 4 spp), the base of
+    the suites and studies the end-to-end tests write to disk."""
+    return f"""
+name = "{name}"
+[surface]
+texture = "{texture}"
+texture_resolution = 64
+[projector]
+resolution = [{side}, {side}]
+[camera]
+resolution = [{side}, {side}]
+[render]
+fidelity = "direct"
+spp = 4
+ambient_spp = 16
+"""
+
 VARIANTS = sorted({choose_variant(), FALLBACK})
 
 

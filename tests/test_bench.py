@@ -11,23 +11,10 @@ from pathlib import Path
 import imageio.v3 as iio
 import pytest
 
+from conftest import tiny_toml
 from compensation.cli import main
 from compensation.methods import METHODS
 
-BASE = """
-name = "base"
-[surface]
-texture = "{texture}"
-texture_resolution = 64
-[projector]
-resolution = [64, 64]
-[camera]
-resolution = [64, 64]
-[render]
-fidelity = "direct"
-spp = 4
-ambient_spp = 16
-"""
 SUITE = """
 base = "base.toml"
 [[setup]]
@@ -57,8 +44,8 @@ def _bench(tmp: Path, *extra: str, methods: str = METHOD_LIST, args: list[str] =
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("bench")
-    (tmp / "base.toml").write_text(BASE.format(texture="noise"))
-    (tmp / "white.toml").write_text(BASE.format(texture="uniform").replace('"base"', '"white"'))
+    (tmp / "base.toml").write_text(tiny_toml("base", 64))
+    (tmp / "white.toml").write_text(tiny_toml("white", 64, "uniform"))
     (tmp / "suite.toml").write_text(SUITE)
     assert _bench(tmp, "--closed-loop") == 0
     return tmp

@@ -7,25 +7,13 @@ from pathlib import Path
 
 import pytest
 
+from conftest import tiny_toml
 from compensation.evaluation.bench import BenchConfig, run_bench
 from compensation.executors import LocalExecutor, Task, attempt, make_executor
 from sim.errors import ProcamError
 from sim.setup import load_suite
 
-BASE = """
-name = "base"
-[surface]
-texture = "noise"
-texture_resolution = 64
-[projector]
-resolution = [32, 32]
-[camera]
-resolution = [32, 32]
-[render]
-fidelity = "direct"
-spp = 4
-ambient_spp = 16
-"""
+BASE = tiny_toml()
 SUITE = """
 base = "base.toml"
 [[setup]]

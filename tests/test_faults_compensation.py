@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import tiny_toml
 from compensation.cli import main
 from compensation.training.config import make_config
 from compensation.training.runs import partial_dir, train_run
@@ -128,20 +129,7 @@ def test_run_files_respect_the_umask_and_leave_nothing_behind(setup_dir, tmp_pat
 
 # -- classes 4 and 8: a killed bench resumes to the same tables; a changed option retrains -------
 
-BENCH_SETUP = """
-name = "tinybench"
-[surface]
-texture = "noise"
-texture_resolution = 64
-[projector]
-resolution = [32, 32]
-[camera]
-resolution = [32, 32]
-[render]
-fidelity = "direct"
-spp = 4
-ambient_spp = 16
-"""
+BENCH_SETUP = tiny_toml("tinybench")
 BENCH_ARGS = ["--methods", "compennet,tps", "--tables", "1", "--sizes", "8", "--size", "32",
               "--n-test", "2", "--iters", "80", "--batch", "4", "--quiet"]
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import pytest
 
+from conftest import tiny_toml
 from compensation.cli import main
 from compensation.evaluation.jobs import RESULT_COLUMNS, run_status
 from compensation.evaluation.summary import STATUSES
@@ -23,20 +24,7 @@ from sim.setup.schema import SECTIONS
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = sorted((ROOT / "scenes" / "studies").glob("*.toml"))
-BASE = """
-name = "base"
-[surface]
-texture = "noise"
-texture_resolution = 64
-[projector]
-resolution = [32, 32]
-[camera]
-resolution = [32, 32]
-[render]
-fidelity = "direct"
-spp = 4
-ambient_spp = 16
-"""
+BASE = tiny_toml()
 STUDY = """
 # Does more ambient light cost the per-pixel methods?
 name = "tiny"
