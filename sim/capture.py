@@ -17,7 +17,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from sim import camera, projector, registration, seeds
+from sim import camera, projector, registration, seeds, surfaces
 from sim.cores import usable_cores
 from sim.fidelity import make_renderer, resolve, with_depth
 from sim.setup import Setup
@@ -61,6 +61,10 @@ def pipelined(items: Iterable[Item], render: Callable[[Item], object],
             yield pending.popleft().result()
 
 
+RULE_PREVIEW_SPP = 16
+"""Samples per pixel of the preview the exposure rule is set from (it reads one percentile of the
+whole frame of plain white, a statistic the preview's Monte-Carlo noise hardly moves)."""
+
 class Simulator:
     """Capture projector frames through a simulated setup.
 
@@ -95,7 +99,8 @@ class Simulator:
     warp_map : sim.registration.WarpMap
         The map captures are warped with (``registration.warp_map``).
     timings : dict[str, float]
-        Seconds spent per phase (``fidelity`` — the ``auto`` measurement —, ``scene`` — including a
+        Seconds spent per phase (``exposure`` — the rule's preview —, ``fidelity`` — the ``auto``
+        measurement —, ``scene`` — including a
         ``transport`` calibration —, ``render``, ``camera``, ``registration`` — without the
         renders and camera model of its checkerboard captures) since creation.
     """
@@ -106,14 +111,16 @@ class Simulator:
         self.size = (int(size[0]), int(size[1]))
         self.timings: dict[str, float] = defaultdict(float)
         t0 = time.perf_counter()
-        self.choice = resolve(setup, fidelity, spp, max_depth=max_depth)
+        self.exposure = self._set_exposure()  # first: ``auto`` measures at the captures' exposure
+        self.timings["exposure"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        self.choice = resolve(self.setup, fidelity, spp, max_depth=max_depth)
         self.timings["fidelity"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         self.renderer = make_renderer(with_depth(setup, self.choice.max_depth), self.choice.level,
                                       self.choice.spp, cache_dir)
         self.renderer.ambient_radiance()
         self.timings["scene"] += time.perf_counter() - t0
-        self.exposure = self._set_exposure()
         t0 = time.perf_counter()
         captured = self.timings["render"] + self.timings["camera"]
         index = itertools.count()
@@ -125,13 +132,20 @@ class Simulator:
 
     def _set_exposure(self) -> dict:
         """The camera's exposure, as :attr:`exposure` records it; with ``exposure_mode = "rule"``
-        set by :func:`sim.camera.rule_exposure` from renders of plain white and plain black, and
-        :attr:`setup` changed to use it for every capture."""
+        set by :func:`sim.camera.rule_exposure` from a preview of plain white and plain black (as
+        an operator sets it before capturing: rendered at :data:`RULE_PREVIEW_SPP`, direct light
+        on surfaces that do not light themselves, path tracing at ``render.max_depth`` on those
+        that do; stream :data:`sim.seeds.EXPOSURE`, steady lamp), and :attr:`setup` changed to use
+        it for every capture. Set before the fidelity is chosen, so that ``auto`` weighs its errors
+        against the noise at the exposure the captures use."""
         cam = self.setup.camera
         if cam.exposure_mode != "rule":
             return {"mode": "manual", "exposure": cam.exposure}
         w, h = self.size
-        white, black = (self.linear(np.full((h, w, 3), level, np.uint8), seeds.EXPOSURE, i)
+        inter = surfaces.surface_for(self.setup.surface).interreflection
+        preview = make_renderer(self.setup, "path" if inter else "direct", RULE_PREVIEW_SPP)
+        white, black = (preview.radiance(np.full((h, w, 3), level, np.uint8),
+                                         seeds.mitsuba_seed(self.setup.render.seed, seeds.EXPOSURE, i))
                         for i, level in enumerate((255, 0)))
         rule = camera.rule_exposure(white, black, cam)
         self.setup = replace(self.setup, camera=replace(cam, exposure=rule["exposure"]))

@@ -212,6 +212,20 @@ def test_exposure_rule_in_the_simulator():
     assert Simulator(tiny_setup(), (32, 32)).exposure == {"mode": "manual", "exposure": 1.0}
 
 
+def test_auto_fidelity_weighs_its_errors_at_the_rule_exposure(monkeypatch):
+    """``auto`` compares render errors with the camera noise in signal units: it must see the
+    exposure the captures will use, not the setup file's placeholder."""
+    import sim.capture
+    from sim.capture import Simulator
+    from tests.conftest import tiny_setup
+
+    seen = []
+    real = sim.capture.resolve
+    monkeypatch.setattr(sim.capture, "resolve", lambda setup, *a, **k: seen.append(setup) or real(setup, *a, **k))
+    sim_ = Simulator(tiny_setup(camera={"exposure_mode": "rule", "exposure": 0.01}), (32, 32))
+    assert seen[0].camera.exposure == sim_.exposure["exposure"] != 0.01
+
+
 @pytest.mark.parametrize("key,value,expected", [
     ("psf_sigma", -0.5, "expected a number in [0, 16] camera pixels"),
     ("bayer", "RGBG", 'expected one of "none", "RGGB"'),
