@@ -117,3 +117,31 @@ def test_reachable_mask_flags_what_the_projector_cannot_do(textured):
     grey = data.ref.captures[62:63]  # a capture is reachable by definition (mid gray frame)
     assert reachable_mask(data, grey).float().mean() > 0.9
     assert np.isclose(float(reachable_mask(data, data.ref.captures[124:125]).float().mean()), 1.0)
+
+
+def test_closed_loop_refuses_a_simulator_that_differs_from_the_dataset(tmp_path):
+    """The closed loop rebuilds the dataset's simulator from its records: an exposure or a
+    homography that comes out otherwise (another machine's variant, an edited record) is refused
+    by name instead of scoring against another setup."""
+    import json
+
+    from sim.errors import DatasetError
+
+    setup = tiny_setup(camera={"exposure_mode": "rule", "resolution": [128, 128]},
+                       registration={"method": "homography"},
+                       surface={"texture": "noise"})
+    setup = type(setup)(**{**setup.__dict__, "name": "rec"})
+    setup_dir = write_setup(tmp_path, setup, FrameSpec(2, 2, (64, 64)), progress=False)
+    simulator_for(setup_dir)  # the records reproduce
+    meta_path = setup_dir / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    assert meta["camera_exposure"]["mode"] == "rule" and meta["registration"]["homography"]["matrix"]
+    for key, edit in (("camera exposure", lambda m: m["camera_exposure"].update(exposure=2.0)),
+                      ("homography", lambda m: m["registration"]["homography"]["matrix"][0].__setitem__(2, 9.0)),
+                      ("variant", lambda m: m.update(variant="scalar_spectral"))):
+        changed = json.loads(json.dumps(meta))
+        edit(changed)
+        meta_path.write_text(json.dumps(changed))
+        with pytest.raises(DatasetError, match=key):
+            simulator_for(setup_dir)
+    meta_path.write_text(json.dumps(meta))

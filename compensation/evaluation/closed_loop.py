@@ -7,9 +7,11 @@ the projector can produce on that surface (between the captures of a black and a
 """
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from compensation.data import SetupData
@@ -38,8 +40,30 @@ def simulator_for(setup_dir: str | Path) -> Simulator:
     size = canonical_size(meta)
     if size is None:
         raise DatasetError(f"{setup_dir / 'meta.json'}: no canonical width and height")
-    return Simulator(setup, size, meta.get("fidelity"), meta.get("spp"), cache_dir=setup_dir / "cache",
-                     max_depth=(meta.get("fidelity_choice") or {}).get("max_depth"))
+    sim = Simulator(setup, size, meta.get("fidelity"), meta.get("spp"), cache_dir=setup_dir / "cache",
+                    max_depth=(meta.get("fidelity_choice") or {}).get("max_depth"))
+    _check_same_hardware(setup_dir / "meta.json", meta, sim)
+    return sim
+
+
+def _check_same_hardware(path: Path, meta: dict, sim: Simulator) -> None:
+    """Refuse a simulator that would not reproduce the dataset's captures: another Mitsuba variant
+    (other Monte-Carlo samples), another exposure, or another registration than ``meta.json``
+    records (each is re-derived from the seeds, so on the same variant they agree exactly)."""
+    mismatch = []
+    if meta.get("variant") and meta["variant"] != sim.renderer.variant:
+        mismatch.append(f"Mitsuba variant {sim.renderer.variant!r} here, {meta['variant']!r} in the "
+                        f"dataset (set PROCAM_VARIANT={meta['variant']} to use it)")
+    recorded = (meta.get("camera_exposure") or {}).get("exposure")
+    if recorded is not None and not math.isclose(recorded, sim.exposure["exposure"], rel_tol=1e-9):
+        mismatch.append(f"camera exposure {sim.exposure['exposure']:.6g} here, {recorded:.6g} in the dataset")
+    hom = ((meta.get("registration") or {}).get("homography") or {}).get("matrix")
+    if hom is not None and (sim.registration.homography is None
+                            or not np.allclose(sim.registration.homography, hom, rtol=1e-6, atol=1e-9)):
+        mismatch.append("another estimated homography than the dataset's")
+    if mismatch:
+        raise DatasetError(f"{path}: the closed loop cannot reproduce this dataset's setup: "
+                           + "; ".join(mismatch))
 
 
 def project(sim: Simulator, frames: torch.Tensor, stream: int) -> torch.Tensor:
