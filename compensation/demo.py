@@ -19,11 +19,11 @@ from compensation.evaluation.closed_loop import (closed_loop, closed_loop_scores
                                                  reachable_mask, reachable_overlay, simulator_for,
                                                  write_captures)
 from compensation.evaluation.report import build_report
-from compensation.evaluation.jobs import write_results, write_study_record
+from compensation.evaluation.jobs import reusable, write_results, write_study_record
 from compensation.training.config import PROFILES, applicable, make_config
-from compensation.training.runs import SCORES, load_run, scores_are_current, train_run
+from compensation.training.runs import SCORES, load_run, train_run
 from sim.dataset import FrameSpec, write_setup
-from sim.io import read_json, write_json, write_png
+from sim.io import write_json, write_png
 from sim.setup import load_setup, scene_path
 
 PROFILE = "quick"
@@ -129,11 +129,10 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
     captures, rows = {}, []
     for name in METHODS:
         run_dir = out / "runs" / f"default-{name}"
-        done = run_dir / "metrics.json"
-        if not (done.exists() and scores_are_current(read_json(done, "run metrics"))):
-            train_run(setup_dir, make_config(PROFILE, name, **applicable(name, overrides)), run_dir,
-                      progress, overwrite=True)
-        metrics = read_json(done, "run metrics")
+        train_cfg = make_config(PROFILE, name, **applicable(name, overrides))
+        metrics = reusable(run_dir, train_cfg, setup_dir)  # a run with other options is retrained
+        if metrics is None:
+            metrics = train_run(setup_dir, train_cfg, run_dir, progress, overwrite=True)
         method, config = load_run(run_dir)
         closed, captured = closed_loop(method, data, sim, return_captures=True)
         write_captures(run_dir, captured)

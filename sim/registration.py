@@ -20,6 +20,7 @@ Two maps bring a capture into that view (:func:`register` picks one by ``registr
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Callable
 
@@ -372,6 +373,10 @@ def register(setup: Setup, size: tuple[int, int], capture: Callable[[np.ndarray]
                 f"corners were not found in the camera's capture at the canonical size "
                 f"{size[0]}x{size[1]}; use a larger size or registration.method = \"exact\"")
         status = "checkerboard corners not found" + (": exact map used" if method == "homography" else "")
+        if method == "homography":
+            warnings.warn(f'setup "{setup.name}": registration.method = "auto": the checkerboard corners '
+                          f"were not found at the canonical size {size[0]}x{size[1]}; registered "
+                          "with the exact map instead (recorded in meta.json)", stacklevel=2)
         return Registration("exact", exact, exact, None, status)
     if method == "exact":
         return Registration("exact", exact, exact, hom, "ok")
