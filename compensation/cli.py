@@ -346,6 +346,9 @@ def cmd_study(args: argparse.Namespace) -> None:
           f"{done['reused']} reused), {done['failed']} failed rows, {done['setups']} setups")
     print(f"procam: study -> {done['study']}")
     print(f"procam: results -> {done['results']}")
+    if done["failed"]:
+        print(f"procam: warning: {done['failed']} of {done['jobs']} rows failed (their errors are in "
+              f"results.csv and failures.csv)", file=sys.stderr)
     from compensation.evaluation.report import build_report
 
     page = build_report(Path(args.out))
