@@ -62,7 +62,7 @@ def test_only_renders_the_named_setups(suite, tmp_path, capsys):
 def test_only_selects_the_bench_setups(suite, tmp_path, monkeypatch):
     seen = {}
 
-    def fake_run_bench(setups, out, cfg, data_root, white, progress, limit):
+    def fake_run_bench(setups, out, cfg, data_root, white, progress, limit, executor=None):
         seen["names"], seen["limit"] = [s.name for s in setups], limit
         return {}
 
