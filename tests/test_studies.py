@@ -17,7 +17,7 @@ from conftest import tiny_toml
 from compensation.cli import main
 from compensation.evaluation.jobs import RESULT_COLUMNS, run_status
 from compensation.evaluation.summary import STATUSES
-from compensation.evaluation.studies import expand, load_study, run_study, with_overrides
+from compensation.evaluation.studies import expand, load_study, with_overrides
 from compensation.methods import METHODS
 from sim.errors import ProcamError
 from sim.setup.schema import SECTIONS

@@ -34,7 +34,6 @@ from pathlib import Path
 from compensation.data import load_setup_data
 from compensation.evaluation.closed_loop import CAPTURES_DIR, N_CAPTURES
 from compensation.evaluation.metrics import evaluate
-from compensation.evaluation.summary import STATUSES
 from compensation.evaluation.official import official_complete, official_tag, write_official_outputs
 from compensation.training.config import TrainConfig
 from compensation.training.runs import load_run, package_version, scores_are_current, train_run
@@ -264,7 +263,8 @@ def _loss_grew(run_dir: Path) -> bool:
 
 
 def run_status(metrics: dict, run_dir: Path) -> tuple[str, str]:
-    """The ``status`` of a finished run (:data:`STATUSES`, never ``failed``) and why."""
+    """The ``status`` of a finished run (:data:`~compensation.evaluation.summary.STATUSES`, never
+    ``failed``) and why."""
     loss = metrics.get("final_loss")
     if loss is not None and not math.isfinite(loss):
         return "diverged", f"final training loss {loss}"

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.errors import ProcamError
-from sim.io import atomic_write, read_json, write_json
+from sim.io import atomic_write, read_json
 
 METRICS = ("psnr", "rmse", "ssim", "deltae")
 """Surrogate metrics (π†(x̃) against x on held-out pairs); ``cl_``, ``unc_`` prefixed: the same in
