@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from sim import images, registration, seeds
+from sim import camera, images, registration, seeds
 from sim.capture import Simulator, capture_workers, pipelined
 from sim.errors import DatasetError, SetupError
 from sim.fidelity import check_level, check_spp, describe, resolve
@@ -224,8 +224,8 @@ def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
     -------
     dict
         What identifies the captures, as :data:`RECORD` holds it: ``variant``, ``width``,
-        ``height``, ``frames`` and, unless the level is ``auto`` (resolved by measuring),
-        ``fidelity`` and ``spp``.
+        ``height``, ``frames``, ``noise_version`` (of the camera-noise streams) and, unless the
+        level is ``auto`` (resolved by measuring), ``fidelity`` and ``spp``.
 
     Raises
     ------
@@ -237,7 +237,7 @@ def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
     check_spp(setup, spp)
     registration.check_visible(setup, spec.size)
     record = {"variant": choose_variant(), "width": int(spec.size[0]), "height": int(spec.size[1]),
-              "frames": spec.source()}
+              "frames": spec.source(), "noise_version": camera.NOISE_VERSION}
     if level != "auto":
         choice = resolve(setup, fidelity, spp)
         record.update(fidelity=choice.level, spp=choice.spp)
@@ -246,7 +246,8 @@ def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
 
 def _read_record(path: Path) -> dict:
     """The :data:`RECORD` keys of a ``render.json`` (or of the ``meta.json`` of a setup rendered
-    before render.json was written), a size of the older form as ``width`` and ``height``.
+    before render.json was written), a size of the older form as ``width`` and ``height``, and
+    ``noise_version`` 1 where the file predates the versioned camera noise.
 
     Raises
     ------
@@ -265,8 +266,10 @@ def _read_record(path: Path) -> dict:
                             ("spp", int, "samples per pixel"), ("frames", dict, "the frames' source")):
         if not isinstance(data.get(key), kind):
             raise DatasetError(f"{path}: key {key!r} = {data.get(key)!r}: expected {what}")
+    meta_seeds = data.get("seeds") if isinstance(data.get("seeds"), dict) else {}
     return {"variant": data["variant"], "fidelity": data["fidelity"], "spp": data["spp"],
-            "width": size[0], "height": size[1], "frames": data["frames"]}
+            "width": size[0], "height": size[1], "frames": data["frames"],
+            "noise_version": data.get("noise_version", meta_seeds.get("noise_version", 1))}
 
 
 def _differences(path: Path, record: dict, expected: dict) -> list[str]:
@@ -537,7 +540,7 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
                        "loaded_from_cache": r.loaded_from_cache} if r.fidelity == "transport" else None),
         "ambient_spp": setup.render.ambient_spp,
         "seeds": {"render": setup.render.seed, "frames": spec.seed,
-                  "streams": seeds.STREAMS},
+                  "streams": seeds.STREAMS, "noise_version": camera.NOISE_VERSION},
         "width": int(spec.size[0]),  # canonical size, pixels
         "height": int(spec.size[1]),
         "camera_resolution": list(setup.camera.resolution),

@@ -108,6 +108,33 @@ def test_sensor_noise_variance_matches_poisson_gaussian_model():
     assert float(camera.noise_sigma(0.3, 1e-3, 1e-2)) == pytest.approx(expected ** 0.5, rel=1e-12)
 
 
+def test_noise_blocks_are_independent_poisson_gaussian_draws():
+    """Version-2 noise: every block of ``camera.BLOCK`` values has the model's mean and variance,
+    and neighbouring blocks (their own child generators) are uncorrelated."""
+    n = 4 * camera.BLOCK
+    level, shot, read = 0.3, 1e-3, 1e-2
+    s = camera.sensor_signal(np.full((n // 3 + 1, 3), level, np.float32), 1.0, (1.0, 1.0, 1.0), shot, read,
+                             np.random.default_rng(7)).ravel().astype(np.float64)
+    blocks = (s[:4 * camera.BLOCK] - level).reshape(4, camera.BLOCK)
+    expected = shot * level + read ** 2
+    assert blocks.var(axis=1) == pytest.approx([expected] * 4, rel=0.03)
+    assert np.abs(blocks.mean(axis=1)).max() < 5 * (expected / camera.BLOCK) ** 0.5
+    r = np.corrcoef(blocks)[np.triu_indices(4, 1)]
+    assert np.abs(r).max() < 5 / camera.BLOCK ** 0.5  # independent streams, not shifted copies
+
+
+def test_noise_is_the_same_on_any_number_of_threads(monkeypatch):
+    from concurrent.futures import ThreadPoolExecutor
+
+    from sim.camera import noise
+    rad = np.random.default_rng(3).random((300, 200, 3), dtype=np.float32)  # several blocks
+    outs = []
+    for workers in (1, 4):
+        monkeypatch.setattr(noise, "_pool", ThreadPoolExecutor(workers))
+        outs.append(camera.capture(rad, cam(), np.random.default_rng(11)))
+    np.testing.assert_array_equal(*outs)
+
+
 def test_noise_free_path_is_exact():
     rad = np.random.default_rng(5).random((6, 7, 3), dtype=np.float32) * 1.5
     wb = np.array([1.1, 1.0, 0.9], np.float32)

@@ -317,6 +317,20 @@ def test_resume_under_another_variant_is_refused(reference, tmp_path, capsys, fi
     assert _snapshot(root) == before
 
 
+def test_captures_of_the_older_noise_streams_are_not_resumed(reference, tmp_path, capsys):
+    """An unfinished setup whose record predates the versioned camera noise (no
+    ``noise_version``: version 1) would mix two noise streams: refused, nothing touched."""
+    root = _copy(reference, tmp_path)
+    (root / "tiny" / "meta.json").unlink()
+    record = json.loads((root / "tiny" / "render.json").read_text())
+    del record["noise_version"]
+    (root / "tiny" / "render.json").write_text(json.dumps(record))
+    before = _snapshot(root)
+    _refused(capsys, ["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS],
+             str(root / "tiny" / "render.json"), "noise_version = 1 (this render: 2)", "--overwrite")
+    assert _snapshot(root) == before
+
+
 @pytest.mark.parametrize("option, fragment", [(["--spp", "8"], "spp = 4 (this render: 8)"),
                                               (["--fidelity", "path"], "fidelity = 'direct' (this render: 'path')")])
 def test_finished_setup_rendered_otherwise_is_refused(reference, tmp_path, capsys, option, fragment):

@@ -21,7 +21,7 @@ The chain of :func:`capture`, each step skipped (at no cost) when its key is off
 :func:`distort_points` maps ideal pinhole pixel coordinates to where the lens distortion shows
 them (for registration).
 """
-from sim.camera.noise import CHUNK, expose, noise_sigma, sensor_signal
+from sim.camera.noise import BLOCK, NOISE_VERSION, expose, noise_sigma, sensor_signal
 from sim.camera.optics import (apply_optics, blur, distort_image, distort_points,
                                vignetting_profile)
 from sim.camera.pipeline import WHITE_CLIPPED_FRACTION, capture, raw_signal, rule_exposure
@@ -31,7 +31,7 @@ from sim.camera.response import (RESPONSE_CURVES, check_response, code_threshold
                                  encode, quantisation_sigma, quantise, response_names)
 
 __all__ = [
-    "BAYER_PATTERNS", "CHUNK", "DEMOSAIC_METHODS", "RESPONSE_CURVES", "WHITE_CLIPPED_FRACTION",
+    "BAYER_PATTERNS", "BLOCK", "DEMOSAIC_METHODS", "RESPONSE_CURVES", "WHITE_CLIPPED_FRACTION",
     "apply_optics", "blur", "capture", "channel_map", "check_response", "code_thresholds", "codes",
     "decode", "demosaic", "distort_image", "distort_points", "encode", "expose", "jpeg", "mosaic",
     "noise_sigma", "quantisation_sigma", "quantise", "raw_signal", "response_names",

@@ -1,17 +1,39 @@
 """Poisson-Gaussian sensor noise: the noisy linear signal and its standard deviation.
 
-:func:`expose` draws the same numbers as a straightforward implementation (``Generator.poisson``
-on the float64 means of the whole image, then ``Generator.normal`` read noise), so captures are
-reproducible across versions bit for bit; it only finishes the signal in chunks of
-:data:`CHUNK` values, so the float64 temporaries stay in cache and a caller can encode each
-chunk at once.
+:func:`expose` draws the noise block by block (:data:`BLOCK` values each, in C order), block k
+from the k-th child of the capture's generator (``Generator.spawn``), and runs the blocks on
+parallel threads (NumPy's samplers release the GIL). A capture is therefore the same bit for bit
+on any number of threads; the streams are version :data:`NOISE_VERSION` (recorded in a dataset's
+``meta.json``).
 """
 from __future__ import annotations
 
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
-CHUNK = 3 * 4096
-"""Values finished at once by :func:`expose` (the draws do not depend on it)."""
+from sim.cores import usable_cores
+
+BLOCK = 1 << 15
+"""Values per noise block: each block has its own child generator and runs as one task."""
+NOISE_VERSION = 2
+"""Version of the camera-noise streams. 1: ``Generator.poisson`` then ``Generator.normal`` over
+the whole image from the capture's generator. 2: per block of :data:`BLOCK` values, the Poisson
+draws then float32 standard normals scaled by the read noise, from the block's child generator.
+Both are exact Poisson and Gaussian draws; only the numbers differ."""
+
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def _threads() -> ThreadPoolExecutor:
+    """The camera's worker threads (one per usable core), started on first use."""
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(usable_cores(), thread_name_prefix="procam-camera")
+        return _pool
 
 
 def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_noise: float,
@@ -19,10 +41,11 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
     """Exposed, noisy and full-well-clipped linear signal.
 
     ``s = values * exposure * gains`` (gains repeat along the last axis), clipped below at 0;
-    ``shot_noise * Poisson(s / shot_noise)`` when ``shot_noise > 0`` (all the Poisson draws
-    first, in C order); plus a normal draw of standard deviation ``read_noise`` per value when
-    ``read_noise > 0``; clipped to [0, 1] and cast to float32; then ``convert`` (e.g. the 8-bit
-    encoder), chunk by chunk. The variance before the clip is ``shot_noise * s + read_noise**2``.
+    ``shot_noise * Poisson(s / shot_noise)`` when ``shot_noise > 0``; plus a normal draw of
+    standard deviation ``read_noise`` per value when ``read_noise > 0``; clipped to [0, 1] and cast
+    to float32; then ``convert`` (e.g. the 8-bit encoder). The variance before the clip is
+    ``shot_noise * s + read_noise**2``. The values are processed in blocks of :data:`BLOCK` on the
+    camera's threads, each block's noise from its own child of ``rng`` (see the module).
 
     Parameters
     ----------
@@ -35,9 +58,9 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
     shot_noise, read_noise : float
         As in :func:`sensor_signal`.
     rng : numpy.random.Generator or None
-        Needed unless both noise terms are 0.
+        Needed unless both noise terms are 0; its children are spawned (``Generator.spawn``).
     convert : callable, optional
-        float32 chunk -> chunk of ``dtype``.
+        float32 block -> block of ``dtype``; called from several threads at once.
     dtype : numpy dtype
         Of the result.
 
@@ -46,29 +69,35 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
     numpy.ndarray
         The shape of ``values``.
     """
-    if rng is None and (shot_noise > 0 or read_noise > 0):
+    noisy = shot_noise > 0 or read_noise > 0
+    if rng is None and noisy:
         raise ValueError("camera: a random generator is needed for shot or read noise")
     s = np.asarray(values, np.float32) * np.float32(exposure)
     if gains is not None:
         s *= np.asarray(gains, np.float32)
     np.maximum(s, 0.0, out=s)
     flat = s.ravel()
-    counts = rng.poisson(flat.astype(np.float64) / shot_noise) if shot_noise > 0 else None
     out = np.empty(flat.shape, dtype)
-    buf64, buf32 = np.empty(min(CHUNK, flat.size)), np.empty(min(CHUNK, flat.size), np.float32)
-    for i in range(0, flat.size, CHUNK):
-        n = min(CHUNK, flat.size - i)
-        x = buf64[:n]
-        if counts is None:
-            x[...] = flat[i:i + n]
+    starts = range(0, flat.size, BLOCK)
+    rngs = rng.spawn(len(starts)) if noisy else [None] * len(starts)
+
+    def finish(i: int, g: np.random.Generator | None) -> None:
+        block = flat[i:i + BLOCK]
+        if shot_noise > 0:
+            x = g.poisson(block.astype(np.float64) / shot_noise) * shot_noise
         else:
-            np.multiply(counts[i:i + n], shot_noise, out=x)
+            x = block.astype(np.float64)
         if read_noise > 0:
-            x += rng.normal(0.0, read_noise, n)
+            x += read_noise * g.standard_normal(block.size, np.float32)
         np.clip(x, 0.0, 1.0, out=x)
-        y = buf32[:n]
-        y[...] = x
-        out[i:i + n] = y if convert is None else convert(y)
+        y = x.astype(np.float32)
+        out[i:i + block.size] = y if convert is None else convert(y)
+
+    if len(starts) == 1:
+        finish(0, rngs[0])
+    else:
+        for done in [_threads().submit(finish, i, g) for i, g in zip(starts, rngs)]:
+            done.result()
     return out.reshape(s.shape)
 
 
