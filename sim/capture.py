@@ -81,6 +81,10 @@ class Simulator:
         Where the ``transport`` level keeps its calibrated operator.
     max_depth : int, optional
         Path depth of a ``path`` level (a dataset's ``auto`` choice); default ``render.max_depth``.
+    exposure : dict, optional
+        What an earlier simulator of this setup recorded as its :attr:`exposure` (a dataset's
+        ``camera_exposure``): with ``exposure_mode = "rule"`` it is used as it is, without the
+        rule's preview renders (it is what the same preview gave).
 
     Attributes
     ----------
@@ -106,12 +110,13 @@ class Simulator:
     """
 
     def __init__(self, setup: Setup, size: tuple[int, int], fidelity: str | None = None,
-                 spp: int | None = None, cache_dir=None, max_depth: int | None = None):
+                 spp: int | None = None, cache_dir=None, max_depth: int | None = None,
+                 exposure: dict | None = None):
         self.setup = setup
         self.size = (int(size[0]), int(size[1]))
         self.timings: dict[str, float] = defaultdict(float)
         t0 = time.perf_counter()
-        self.exposure = self._set_exposure()  # first: ``auto`` measures at the captures' exposure
+        self.exposure = self._set_exposure(exposure)  # first: ``auto`` measures at the captures' exposure
         self.timings["exposure"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         self.choice = resolve(self.setup, fidelity, spp, max_depth=max_depth)
@@ -130,17 +135,21 @@ class Simulator:
         self.timings["registration"] += (time.perf_counter() - t0
                                          - (self.timings["render"] + self.timings["camera"] - captured))
 
-    def _set_exposure(self) -> dict:
+    def _set_exposure(self, recorded: dict | None = None) -> dict:
         """The camera's exposure, as :attr:`exposure` records it; with ``exposure_mode = "rule"``
         set by :func:`sim.camera.rule_exposure` from a preview of plain white and plain black (as
         an operator sets it before capturing: rendered at :data:`RULE_PREVIEW_SPP`, direct light
         on surfaces that do not light themselves, path tracing at ``render.max_depth`` on those
         that do; stream :data:`sim.seeds.EXPOSURE`, steady lamp), and :attr:`setup` changed to use
         it for every capture. Set before the fidelity is chosen, so that ``auto`` weighs its errors
-        against the noise at the exposure the captures use."""
+        against the noise at the exposure the captures use. A ``recorded`` rule exposure (see the
+        class) is taken as it is."""
         cam = self.setup.camera
         if cam.exposure_mode != "rule":
             return {"mode": "manual", "exposure": cam.exposure}
+        if recorded is not None and recorded.get("mode") == "rule":
+            self.setup = replace(self.setup, camera=replace(cam, exposure=float(recorded["exposure"])))
+            return dict(recorded)
         w, h = self.size
         inter = surfaces.surface_for(self.setup.surface).interreflection
         preview = make_renderer(self.setup, "path" if inter else "direct", RULE_PREVIEW_SPP)

@@ -11,6 +11,7 @@ from compensation.evaluation.closed_loop import (closed_loop, iterative_refineme
 from compensation.evaluation.metrics import masked_scores, psnr, rmse
 from compensation.methods.base import Method, NoOptions
 from conftest import tiny_setup
+from sim.capture import Simulator
 from sim.dataset import FrameSpec, write_setup
 
 
@@ -120,8 +121,8 @@ def test_reachable_mask_flags_what_the_projector_cannot_do(textured):
 
 
 def test_closed_loop_refuses_a_simulator_that_differs_from_the_dataset(tmp_path):
-    """The closed loop rebuilds the dataset's simulator from its records: an exposure or a
-    homography that comes out otherwise (another machine's variant, an edited record) is refused
+    """The closed loop rebuilds the dataset's simulator from its records (the exposure is taken
+    from them): a homography that comes out otherwise (another machine's variant, an edited record) is refused
     by name instead of scoring against another setup."""
     import json
 
@@ -132,12 +133,15 @@ def test_closed_loop_refuses_a_simulator_that_differs_from_the_dataset(tmp_path)
                        surface={"texture": "noise"})
     setup = type(setup)(**{**setup.__dict__, "name": "rec"})
     setup_dir = write_setup(tmp_path, setup, FrameSpec(2, 2, (64, 64)), progress=False)
-    simulator_for(setup_dir)  # the records reproduce
+    sim = simulator_for(setup_dir)  # the records reproduce
     meta_path = setup_dir / "meta.json"
     meta = json.loads(meta_path.read_text())
     assert meta["camera_exposure"]["mode"] == "rule" and meta["registration"]["homography"]["matrix"]
-    for key, edit in (("camera exposure", lambda m: m["camera_exposure"].update(exposure=2.0)),
-                      ("homography", lambda m: m["registration"]["homography"]["matrix"][0].__setitem__(2, 9.0)),
+    # the recorded rule exposure is taken without rendering its preview again, and it is what the
+    # preview gives
+    assert sim.exposure == meta["camera_exposure"] and sim.setup.camera.exposure == sim.exposure["exposure"]
+    assert Simulator(setup, (64, 64)).exposure == meta["camera_exposure"]
+    for key, edit in (("homography", lambda m: m["registration"]["homography"]["matrix"][0].__setitem__(2, 9.0)),
                       ("variant", lambda m: m.update(variant="scalar_spectral"))):
         changed = json.loads(json.dumps(meta))
         edit(changed)

@@ -33,7 +33,8 @@ REACH_TOLERANCE = 2 / 255
 
 def simulator_for(setup_dir: str | Path) -> Simulator:
     """The simulator a dataset was rendered with: its resolved ``setup.toml`` plus the canonical
-    size, fidelity, spp and path depth recorded in ``meta.json`` (a transport operator comes from the cache)."""
+    size, fidelity, spp, path depth and camera exposure recorded in ``meta.json`` (a transport
+    operator comes from the cache; the exposure rule's preview is not rendered again)."""
     setup_dir = Path(setup_dir)
     meta = read_json(setup_dir / "meta.json", "dataset metadata")
     setup = load_setup(setup_dir / "setup.toml")
@@ -41,7 +42,8 @@ def simulator_for(setup_dir: str | Path) -> Simulator:
     if size is None:
         raise DatasetError(f"{setup_dir / 'meta.json'}: no canonical width and height")
     sim = Simulator(setup, size, meta.get("fidelity"), meta.get("spp"), cache_dir=setup_dir / "cache",
-                    max_depth=(meta.get("fidelity_choice") or {}).get("max_depth"))
+                    max_depth=(meta.get("fidelity_choice") or {}).get("max_depth"),
+                    exposure=meta.get("camera_exposure") if isinstance(meta.get("camera_exposure"), dict) else None)
     _check_same_hardware(setup_dir / "meta.json", meta, sim)
     return sim
 
