@@ -9,7 +9,9 @@ Steps (each adds to the one above):
 * ``surface once``: s̃ with batch 1, encoded once per batch and broadcast;
 * ``channels_last``: network and images in the channels-last memory layout;
 * ``ssim``: procam's SSIM (per-channel 1-D Gaussian passes in the channels-last layout);
-* ``inplace relu``: in-place ReLUs — procam's training step (:func:`fit_network`);
+* ``inplace relu``: in-place ReLUs;
+* ``nchw weight grad``: the wide convolutions' weight gradients taken in the default layout
+  (:mod:`compensation.training.conv_grad`) — procam's CPU training step (:func:`fit_network`);
 * ``compile`` (``--compile``): ``torch.compile`` of the network on top.
 
 Then, with ``--data``, the `quick` profile's training time and test PSNR/SSIM on the default setup.
@@ -24,6 +26,7 @@ import copy
 import os
 import statistics
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytorch_msssim
@@ -33,8 +36,9 @@ import torch.nn.functional as F
 from compensation.evaluation.losses import l1, l1_ssim
 from compensation.evaluation.metrics import gaussian_window
 from compensation.methods.compennet import CompenNet
+from compensation.training.conv_grad import nchw_weight_gradients
 
-STEPS = ("naive", "surface once", "channels_last", "ssim", "inplace relu", "compile")
+STEPS = ("naive", "surface once", "channels_last", "ssim", "inplace relu", "nchw weight grad", "compile")
 """The measured steps, in order; each adds one speed-up to the one before."""
 
 
@@ -59,6 +63,8 @@ def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: t
         model = model.to(memory_format=layout)
         x, y, s = (t.contiguous(memory_format=layout) for t in (x, y, s))
     loss_fn = l1_ssim if level >= STEPS.index("ssim") else previous_l1_ssim
+    if level >= STEPS.index("nchw weight grad"):
+        ExitStack().enter_context(nchw_weight_gradients(model))  # for the model's lifetime
     forward = torch.compile(model) if name == "compile" else model
     opt = torch.optim.Adam(model.parameters(), lr=1e-3, weight_decay=1e-4)
 

@@ -15,6 +15,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -24,6 +25,7 @@ import torch
 from tqdm import tqdm
 
 from compensation.evaluation.losses import get_loss
+from compensation.training.conv_grad import nchw_weight_gradients
 from sim.errors import ProcamError
 from sim.io import atomic_write
 
@@ -347,7 +349,8 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     The network and the images are kept in the channels-last memory layout while training
     (oneDNN's native layout on the CPU, ``benchmarks/train.py`` measures its effect; the layout of
     CUDA's tensor-core convolutions); the values are those of the default layout to float
-    rounding, and the model is returned in the default layout.
+    rounding, and the model is returned in the default layout. On the CPU the wide convolutions
+    take their weight gradient in the default layout instead (:mod:`compensation.training.conv_grad`).
 
     Returns
     -------
@@ -395,9 +398,10 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
         stateful["crops"] = crops
     model.train()
     try:
-        result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
-                            ("loss", "lr"), f"train {cfg.method} on {data.name}", progress, stateful,
-                            checkpoint, sampler=opt.sampler)
+        with nchw_weight_gradients(model) if device.type == "cpu" else nullcontext():
+            result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
+                                ("loss", "lr"), f"train {cfg.method} on {data.name}", progress,
+                                stateful, checkpoint, sampler=opt.sampler)
     finally:
         model.to(memory_format=torch.contiguous_format)
     return {"seconds": result.seconds, "samples_per_second": result.samples_per_second,
