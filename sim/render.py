@@ -6,17 +6,35 @@ The scene is built once; each projector frame is swapped into the projector's te
 """
 from __future__ import annotations
 
-import numpy as np
-
+import hashlib
+from collections import OrderedDict
 from dataclasses import replace
+
+import numpy as np
 
 from sim import geometry, projector, scene, seeds, surfaces
 from sim.errors import ProcamError
 from sim.io import to_float
-from sim.setup import Setup
+from sim.setup import Setup, dump_setup
 from sim.variant import use_variant
 
 _TEXTURE = f"{scene.PROJECTOR_KEY}.irradiance.data"
+
+AMBIENT_MEMO_SIZE = 4
+"""Ambient images a process keeps (7 MB each at 960x640): the exposure rule's preview, the
+fidelity measurement and the capture renderer of one setup render the same ambient scene, which
+at ``render.ambient_spp`` costs more than all their projector renders."""
+_ambient_memo: OrderedDict[str, np.ndarray] = OrderedDict()
+
+
+def _ambient_key(setup: Setup, fidelity: str, variant: str) -> str:
+    """What identifies an ambient image: the resolved setup (but the camera's exposure, which the
+    exposure rule sets after the preview and which does not change radiance), the integrator, the
+    variant."""
+    radiance_setup = replace(setup, camera=replace(setup.camera, exposure=1.0))
+    text = (f"{dump_setup(radiance_setup)}\n{scene.integrator_for(setup, fidelity)!r}\n"
+            f"variant={variant}\n")
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def throw_distance(setup: Setup) -> float:
@@ -152,20 +170,29 @@ class Renderer:
         return np.array(mi.render(self._scene, self._params, seed=int(seed)), dtype=np.float32)
 
     def ambient_radiance(self) -> np.ndarray:
-        """Radiance due to the ambient light alone (rendered once, at ``render.ambient_spp``)."""
+        """Radiance due to the ambient light alone (rendered once, at ``render.ambient_spp``; a
+        renderer of the same setup, integrator and variant in this process reuses it). Read-only."""
         import mitsuba as mi
 
         if self._ambient is None:
             amb = self.setup.ambient.radiance
             w, h = self.setup.camera.resolution
+            key = _ambient_key(self.setup, self.fidelity, self.variant)
             if max(amb) <= 0:
                 self._ambient = np.zeros((h, w, 3), np.float32)
+            elif key in _ambient_memo:
+                self._ambient = _ambient_memo[key]
+                _ambient_memo.move_to_end(key)
             else:
                 use_variant(self.variant)
                 sc = mi.load_dict(scene.ambient_scene(self.setup, self.albedo, self.fidelity,
                                                       self.setup.render.ambient_spp))
                 seed = seeds.mitsuba_seed(self.setup.render.seed, seeds.AMBIENT, 0)
                 self._ambient = np.array(mi.render(sc, seed=seed), dtype=np.float32)
+                _ambient_memo[key] = self._ambient
+                while len(_ambient_memo) > AMBIENT_MEMO_SIZE:
+                    _ambient_memo.popitem(last=False)
+            self._ambient.flags.writeable = False
         return self._ambient
 
     def radiance(self, frame: np.ndarray, seed: int = 0) -> np.ndarray:

@@ -106,3 +106,22 @@ def test_projector_defocus_blurs_a_line():
     width = lambda p: (p > 0.5 * p.max()).sum()  # noqa: E731
     assert width(prof_b) > width(prof_s) + 1
     np.testing.assert_allclose(prof_b.sum(), prof_s.sum(), rtol=0.05)
+
+
+def test_ambient_image_is_rendered_once_per_setup_in_a_process():
+    """Renderers of one setup (the exposure preview, the capture renderer) share the ambient image
+    instead of rendering it again; another ambient level is another image, linear in it."""
+    from dataclasses import replace
+
+    from sim import render
+    setup = tiny_setup(ambient={"radiance": [0.05, 0.05, 0.05]})
+    render._ambient_memo.clear()
+    first = Renderer(setup, "direct", 4).ambient_radiance()
+    assert Renderer(setup, "direct", 8).ambient_radiance() is first  # spp of the projector only
+    assert not first.flags.writeable
+    brighter = replace(setup, ambient=replace(setup.ambient, radiance=(0.1, 0.1, 0.1)))
+    second = Renderer(brighter, "direct", 4).ambient_radiance()
+    assert second is not first
+    np.testing.assert_allclose(second, 2 * first, rtol=1e-5, atol=1e-7)
+    exposed = replace(setup, camera=replace(setup.camera, exposure=2.5))  # what the rule changes
+    assert Renderer(exposed, "direct", 4).ambient_radiance() is first
