@@ -188,3 +188,15 @@ def test_quantisation_sigma_matches_simulated_rounding():
     edge = camera.quantisation_sigma(np.array([0.0, 1.0]), "scurve:3")
     assert np.all(np.isfinite(edge)) and np.all(edge > 0)
     assert float(camera.quantisation_sigma(0.0, "Gamma 2.2")) > 0
+
+
+def test_a_forked_child_draws_noise_with_its_own_threads():
+    """The camera's thread pool does not survive fork(); a child starts its own (it would wait
+    forever on the parent's threads otherwise)."""
+    import multiprocessing
+
+    rad = np.random.default_rng(4).random((200, 200, 3), dtype=np.float32)  # several blocks
+    here = camera.capture(rad, cam(), np.random.default_rng(2))  # the pool exists now
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        there = pool.apply_async(camera.capture, (rad, cam(), np.random.default_rng(2))).get(timeout=60)
+    np.testing.assert_array_equal(here, there)

@@ -8,6 +8,7 @@ on any number of threads; the streams are version :data:`NOISE_VERSION` (recorde
 """
 from __future__ import annotations
 
+import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -34,6 +35,15 @@ def _threads() -> ThreadPoolExecutor:
         if _pool is None:
             _pool = ThreadPoolExecutor(usable_cores(), thread_name_prefix="procam-camera")
         return _pool
+
+
+def _forget_threads() -> None:
+    """In a forked child: the parent's threads are not there, start new ones when needed."""
+    global _pool, _pool_lock
+    _pool, _pool_lock = None, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_threads)
 
 
 def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_noise: float,
