@@ -39,6 +39,10 @@ finite; the training loss grew (:data:`compensation.evaluation.jobs.DIVERGED_RAT
 finite."""
 BREAK_GAIN_DB = 1.0
 """A method breaks where its closed-loop PSNR gain over uncompensated falls below this (dB)."""
+OVERTAKE_MARGIN_DB = 0.1
+"""A method is overtaken where it falls below another method by more than this (dB): closer
+crossings are within a single run's spread (two methods 0.02 dB apart swapped places along the
+inter-reflection study's flat lines, ``benchmarks/results/studies/``)."""
 
 
 def _number(text: str) -> float | str:
@@ -273,8 +277,8 @@ def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_
 
     - its PSNR gain over uncompensated (:func:`closed_loop_gain`) is below ``threshold`` dB, or it
       has no score there (every run failed): ``kind`` ``gain`` or ``failed``;
-    - it falls below another method (same n_train) that it matched or beat at the previous value:
-      ``kind`` ``overtaken``, ``other`` names that method.
+    - it falls more than :data:`OVERTAKE_MARGIN_DB` below another method (same n_train) that it
+      matched or beat at the previous value: ``kind`` ``overtaken``, ``other`` names that method.
 
     A method that never breaks gets ``kind`` ``none`` and an empty ``break_value``. Without an axis
     (a bench) there is nothing to break along: no rows. Where the factor sets the training size
@@ -290,6 +294,9 @@ def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_
     [('a', 1.0, 'overtaken', 'b'), ('b', '', 'none', '')]
     >>> [b["break_value"] for b in breakpoints([r for r in s if r["method"] == "a"], study)]
     [3.0]
+    >>> close = [row(p, "c", cl) for p, cl in enumerate([24.02, 22.95, 20.97, 19.96])]  # crosses b
+    >>> [(b["method"], b["kind"]) for b in breakpoints(close + s[4:], study)]  # by 0.05 dB: noise
+    [('c', 'none'), ('b', 'none')]
     """
     axes = study.get("axes", [])
     if not axes:
@@ -325,7 +332,7 @@ def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_
                                 or prev not in psnr[method]:
                             continue
                         o_now, o_prev = psnr[other][v][0], psnr[other][prev][0]
-                        if score < o_now and psnr[method][prev][0] >= o_prev:
+                        if score < o_now - OVERTAKE_MARGIN_DB and psnr[method][prev][0] >= o_prev:
                             found = (i, "overtaken", other, f"{which} PSNR {score:.2f} dB falls below "
                                                             f"{other}'s {o_now:.2f} dB")
                             break
