@@ -8,6 +8,7 @@ capture is reproducible bit for bit and two different captures never share noise
 from __future__ import annotations
 
 import itertools
+import math
 import time
 from collections import defaultdict, deque
 from collections.abc import Callable, Iterable, Iterator
@@ -147,8 +148,10 @@ class Simulator:
         cam = self.setup.camera
         if cam.exposure_mode != "rule":
             return {"mode": "manual", "exposure": cam.exposure}
-        if recorded is not None and recorded.get("mode") == "rule":
-            self.setup = replace(self.setup, camera=replace(cam, exposure=float(recorded["exposure"])))
+        value = recorded.get("exposure") if isinstance(recorded, dict) else None
+        if recorded is not None and recorded.get("mode") == "rule" and isinstance(value, (int, float)) \
+                and math.isfinite(value) and value > 0:  # else measured again, and compared by the caller
+            self.setup = replace(self.setup, camera=replace(cam, exposure=float(value)))
             return dict(recorded)
         w, h = self.size
         inter = surfaces.surface_for(self.setup.surface).interreflection

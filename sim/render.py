@@ -21,9 +21,9 @@ from sim.variant import use_variant
 _TEXTURE = f"{scene.PROJECTOR_KEY}.irradiance.data"
 
 AMBIENT_MEMO_SIZE = 4
-"""Ambient images a process keeps (7 MB each at 960x640): the exposure rule's preview, the
-fidelity measurement and the capture renderer of one setup render the same ambient scene, which
-at ``render.ambient_spp`` costs more than all their projector renders."""
+"""Ambient images a process keeps (7 MB each at 960x640): the exposure rule's preview and the
+capture renderer (or its transport calibration) of one setup render the same ambient scene,
+which at ``render.ambient_spp`` costs more than the preview's projector renders."""
 _ambient_memo: OrderedDict[str, np.ndarray] = OrderedDict()
 
 

@@ -141,7 +141,8 @@ def test_closed_loop_refuses_a_simulator_that_differs_from_the_dataset(tmp_path)
     # preview gives
     assert sim.exposure == meta["camera_exposure"] and sim.setup.camera.exposure == sim.exposure["exposure"]
     assert Simulator(setup, (64, 64)).exposure == meta["camera_exposure"]
-    for key, edit in (("homography", lambda m: m["registration"]["homography"]["matrix"][0].__setitem__(2, 9.0)),
+    for key, edit in (("camera_exposure.exposure = 'bright'", lambda m: m["camera_exposure"].update(exposure="bright")),
+                      ("homography", lambda m: m["registration"]["homography"]["matrix"][0].__setitem__(2, 9.0)),
                       ("variant", lambda m: m.update(variant="scalar_spectral"))):
         changed = json.loads(json.dumps(meta))
         edit(changed)

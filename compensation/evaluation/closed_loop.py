@@ -43,7 +43,7 @@ def simulator_for(setup_dir: str | Path) -> Simulator:
         raise DatasetError(f"{setup_dir / 'meta.json'}: no canonical width and height")
     sim = Simulator(setup, size, meta.get("fidelity"), meta.get("spp"), cache_dir=setup_dir / "cache",
                     max_depth=(meta.get("fidelity_choice") or {}).get("max_depth"),
-                    exposure=meta.get("camera_exposure") if isinstance(meta.get("camera_exposure"), dict) else None)
+                    exposure=recorded if isinstance(recorded := meta.get("camera_exposure"), dict) else None)
     _check_same_hardware(setup_dir / "meta.json", meta, sim)
     return sim
 
@@ -56,8 +56,11 @@ def _check_same_hardware(path: Path, meta: dict, sim: Simulator) -> None:
     if meta.get("variant") and meta["variant"] != sim.renderer.variant:
         mismatch.append(f"Mitsuba variant {sim.renderer.variant!r} here, {meta['variant']!r} in the "
                         f"dataset (set PROCAM_VARIANT={meta['variant']} to use it)")
-    recorded = (meta.get("camera_exposure") or {}).get("exposure")
-    if recorded is not None and not math.isclose(recorded, sim.exposure["exposure"], rel_tol=1e-9):
+    record = meta.get("camera_exposure")
+    recorded = record.get("exposure") if isinstance(record, dict) else None
+    if recorded is not None and not isinstance(recorded, (int, float)):
+        mismatch.append(f"camera_exposure.exposure = {recorded!r} in the dataset (expected a number)")
+    elif recorded is not None and not math.isclose(recorded, sim.exposure["exposure"], rel_tol=1e-9):
         mismatch.append(f"camera exposure {sim.exposure['exposure']:.6g} here, {recorded:.6g} in the dataset")
     hom = ((meta.get("registration") or {}).get("homography") or {}).get("matrix")
     if hom is not None and (sim.registration.homography is None

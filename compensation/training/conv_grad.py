@@ -79,7 +79,8 @@ def nchw_weight_gradients(model: torch.nn.Module) -> Iterator[int]:
     >>> x.grad = conv.weight.grad = conv.bias.grad = None
     >>> with nchw_weight_gradients(conv) as changed:
     ...     conv(x).square().sum().backward()
-    >>> changed, torch.allclose(x.grad, reference[0], atol=1e-5), torch.allclose(conv.weight.grad, reference[1], rtol=1e-4)
+    >>> same_x = torch.allclose(x.grad, reference[0], atol=1e-5)
+    >>> changed, same_x, torch.allclose(conv.weight.grad, reference[1], rtol=1e-4)
     (1, True, True)
     """
     changed = [m for m in model.modules() if _applies(m)]
