@@ -149,7 +149,7 @@ class Simulator:
         if cam.exposure_mode != "rule":
             return {"mode": "manual", "exposure": cam.exposure}
         value = recorded.get("exposure") if isinstance(recorded, dict) else None
-        if recorded is not None and recorded.get("mode") == "rule" and isinstance(value, (int, float)) \
+        if isinstance(value, (int, float)) and recorded.get("mode") == "rule" \
                 and math.isfinite(value) and value > 0:  # else measured again, and compared by the caller
             self.setup = replace(self.setup, camera=replace(cam, exposure=float(value)))
             return dict(recorded)

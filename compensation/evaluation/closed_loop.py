@@ -43,7 +43,7 @@ def simulator_for(setup_dir: str | Path) -> Simulator:
         raise DatasetError(f"{setup_dir / 'meta.json'}: no canonical width and height")
     sim = Simulator(setup, size, meta.get("fidelity"), meta.get("spp"), cache_dir=setup_dir / "cache",
                     max_depth=(meta.get("fidelity_choice") or {}).get("max_depth"),
-                    exposure=recorded if isinstance(recorded := meta.get("camera_exposure"), dict) else None)
+                    exposure=meta.get("camera_exposure"))
     _check_same_hardware(setup_dir / "meta.json", meta, sim)
     return sim
 
