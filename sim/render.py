@@ -177,8 +177,8 @@ class Renderer:
         if self._ambient is None:
             amb = self.setup.ambient.radiance
             w, h = self.setup.camera.resolution
-            key = _ambient_key(self.setup, self.fidelity, self.variant)
-            if max(amb) <= 0:
+            key = None if max(amb) <= 0 else _ambient_key(self.setup, self.fidelity, self.variant)
+            if key is None:
                 self._ambient = np.zeros((h, w, 3), np.float32)
             elif key in _ambient_memo:
                 self._ambient = _ambient_memo[key]
