@@ -15,7 +15,7 @@ import numpy as np
 from sim import geometry, projector, scene, seeds, surfaces
 from sim.errors import ProcamError
 from sim.io import to_float
-from sim.setup import Setup, dump_setup
+from sim.setup import ProjectorConfig, RegistrationConfig, Setup, dump_setup
 from sim.variant import use_variant
 
 _TEXTURE = f"{scene.PROJECTOR_KEY}.irradiance.data"
@@ -28,10 +28,14 @@ _ambient_memo: OrderedDict[str, np.ndarray] = OrderedDict()
 
 
 def _ambient_key(setup: Setup, fidelity: str, variant: str) -> str:
-    """What identifies an ambient image: the resolved setup (but the camera's exposure, which the
-    exposure rule sets after the preview and which does not change radiance), the integrator, the
-    variant."""
-    radiance_setup = replace(setup, camera=replace(setup.camera, exposure=1.0))
+    """What identifies an ambient image: the resolved setup but what the ambient scene
+    (:func:`sim.scene.ambient_scene`) does not see — the name, the projector, the registration
+    and the camera's exposure (which the exposure rule sets after the preview) — the integrator
+    and the variant. Setups that differ only in their projector (a projector study's points)
+    share one ambient image."""
+    radiance_setup = replace(setup, name="ambient", projector=ProjectorConfig(),
+                             registration=RegistrationConfig(),
+                             camera=replace(setup.camera, exposure=1.0))
     text = (f"{dump_setup(radiance_setup)}\n{scene.integrator_for(setup, fidelity)!r}\n"
             f"variant={variant}\n")
     return hashlib.sha256(text.encode()).hexdigest()

@@ -125,3 +125,12 @@ def test_ambient_image_is_rendered_once_per_setup_in_a_process():
     np.testing.assert_allclose(second, 2 * first, rtol=1e-5, atol=1e-7)
     exposed = replace(setup, camera=replace(setup.camera, exposure=2.5))  # what the rule changes
     assert Renderer(exposed, "direct", 4).ambient_radiance() is first
+    # the ambient scene has no projector: a projector study's points share the image, and it is
+    # the image each would render on its own
+    moved = replace(setup, name="other", projector=replace(setup.projector, aperture=0.05,
+                                                           position=(0.1, 0.0, 0.0)))
+    assert Renderer(moved, "direct", 4).ambient_radiance() is first
+    render._ambient_memo.clear()
+    np.testing.assert_array_equal(Renderer(moved, "direct", 4).ambient_radiance(), first)
+    wider = replace(setup, camera=replace(setup.camera, fov=setup.camera.fov + 5))
+    assert Renderer(wider, "direct", 4).ambient_radiance() is not first
