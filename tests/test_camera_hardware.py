@@ -20,12 +20,9 @@ from sim.setup.schema import CameraConfig
 LINEAR = replace(CameraConfig(), response="linear", shot_noise=0.0, read_noise=0.0)
 
 
-def straightforward_capture(radiance, cfg, rng):
-    """The camera model written plainly (all hardware effects off): float64 noise block by block
-    of ``camera.BLOCK`` values, block k from the k-th spawned child generator, one thread; then the
-    response curve and rint(255 x)."""
-    rad = np.asarray(radiance, dtype=np.float32)
-    s = np.maximum(rad * np.float32(cfg.exposure) * np.asarray(cfg.white_balance, np.float32), 0.0)
+def straightforward_noise(s, cfg, rng):
+    """Noise version 2 written plainly: float64 draws block by block of ``camera.BLOCK`` values,
+    block k from the k-th spawned child generator, one thread; the full-well clip; float32."""
     flat, noisy = s.ravel(), []
     starts = range(0, flat.size, camera.BLOCK)
     for start, g in zip(starts, rng.spawn(len(starts))):
@@ -35,8 +32,15 @@ def straightforward_capture(radiance, cfg, rng):
         if cfg.read_noise > 0:
             b = b + cfg.read_noise * g.standard_normal(b.size, np.float32)
         noisy.append(b)
-    signal = np.clip(np.concatenate(noisy), 0.0, 1.0).astype(np.float32).reshape(s.shape)
-    return camera.quantise(camera.encode(signal, cfg.response))
+    return np.clip(np.concatenate(noisy), 0.0, 1.0).astype(np.float32).reshape(s.shape)
+
+
+def straightforward_capture(radiance, cfg, rng):
+    """The camera model written plainly (all hardware effects off): the exposed signal, its noise
+    (:func:`straightforward_noise`), then the response curve and rint(255 x)."""
+    rad = np.asarray(radiance, dtype=np.float32)
+    s = np.maximum(rad * np.float32(cfg.exposure) * np.asarray(cfg.white_balance, np.float32), 0.0)
+    return camera.quantise(camera.encode(straightforward_noise(s, cfg, rng), cfg.response))
 
 
 @pytest.mark.parametrize("response", ["sRGB", "linear", "gamma:2.2", "ITU-R BT.709", "scurve:9",
@@ -49,6 +53,32 @@ def test_codes_equal_encode_then_quantise_bit_for_bit(response):
                         (t - 1).view(np.float32), t.view(np.float32), (t + 1).view(np.float32),
                         np.array([-0.0, 0.0, 1.0, 7.0, -3.0, 1e-38], np.float32)])
     np.testing.assert_array_equal(camera.codes(x, response), camera.quantise(camera.encode(x, response)))
+
+
+@pytest.mark.parametrize("pattern,method", [("RGGB", "bilinear"), ("GRBG", "edgeaware"), ("BGGR", "vng")])
+def test_bayer_capture_is_bit_identical_to_the_straightforward_model(pattern, method):
+    """The Bayer path (mosaic by slices, the encoder in threaded blocks) against the chain written
+    plainly: mosaic by the channel map, the plain noise on its sites, white balance, clip, 16-bit
+    quantisation, OpenCV, then the whole image's response and rint."""
+    rng = np.random.default_rng(2)
+    rad = rng.random((211, 163, 3), dtype=np.float32) * 1.2  # odd sides, several blocks
+    cfg = replace(CameraConfig(), bayer=pattern, demosaic=method, white_balance=(1.6, 1.0, 1.3))
+    site = camera.channel_map(pattern, 163, 211)
+    plain = np.take_along_axis(rad, site[..., None], axis=2)[..., 0]
+    noisy = straightforward_noise(np.maximum(plain * np.float32(cfg.exposure), 0.0), cfg,
+                                  np.random.default_rng(9))
+    wb = np.clip(noisy * np.asarray(cfg.white_balance, np.float32)[site], 0.0, 1.0)
+    cv_pattern = {"RGGB": "BG", "BGGR": "RG", "GRBG": "GB", "GBRG": "GR"}[pattern]  # OpenCV's names
+    if method == "vng":
+        expected = cv2.cvtColor(camera.quantise(camera.encode(wb, cfg.response)),
+                                getattr(cv2, f"COLOR_Bayer{cv_pattern}2RGB_VNG"))
+    else:
+        q = np.rint(wb * np.float32(65535)).astype(np.uint16)
+        suffix = "_EA" if method == "edgeaware" else ""
+        rgb = cv2.cvtColor(q, getattr(cv2, f"COLOR_Bayer{cv_pattern}2RGB{suffix}"))
+        expected = camera.quantise(camera.encode(rgb.astype(np.float32) * np.float32(1 / 65535),
+                                                 cfg.response))
+    np.testing.assert_array_equal(camera.capture(rad, cfg, np.random.default_rng(9)), expected)
 
 
 @pytest.mark.parametrize("kw", [{}, {"shot_noise": 0.0}, {"read_noise": 0.0},
@@ -98,6 +128,9 @@ def test_bayer_sites_keep_only_their_channel(pattern):
         for dx in range(2):
             c = channel[pattern[2 * dy + dx]]
             np.testing.assert_array_equal(raw[dy::2, dx::2], rgb[dy::2, dx::2, c])
+    odd = rgb[:5, :7]  # odd sides: the last row and column hold half a 2x2 block
+    np.testing.assert_array_equal(camera.mosaic(odd, pattern), np.take_along_axis(
+        odd, camera.channel_map(pattern, 7, 5)[..., None], axis=2)[..., 0])
     assert np.bincount(camera.channel_map(pattern, 8, 6).ravel()).tolist() == [12, 24, 12]
     # a flat colour survives mosaic and OpenCV demosaicing with the pattern's own code
     colour = np.array([0.8, 0.4, 0.15], np.float32)

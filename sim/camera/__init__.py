@@ -19,7 +19,8 @@ The chain of :func:`capture`, each step skipped (at no cost) when its key is off
 9. JPEG compression and decompression at ``jpeg_quality`` (0: none).
 
 :func:`distort_points` maps ideal pinhole pixel coordinates to where the lens distortion shows
-them (for registration).
+them (for registration). The steps that run block by block (the noise, the encoder of a demosaiced
+image) share the camera's worker threads (:mod:`sim.camera.threads`).
 """
 from sim.camera.noise import BLOCK, NOISE_VERSION, expose, noise_sigma, sensor_signal
 from sim.camera.optics import (apply_optics, blur, distort_image, distort_points,

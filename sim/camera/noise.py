@@ -8,42 +8,17 @@ on any number of threads; the streams are version :data:`NOISE_VERSION` (recorde
 """
 from __future__ import annotations
 
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 
 import numpy as np
 
-from sim.cores import usable_cores
+from sim.camera.threads import BLOCK, run
 
-BLOCK = 1 << 15
-"""Values per noise block: each block has its own child generator and runs as one task."""
 NOISE_VERSION = 2
 """Version of the camera-noise streams. 1: ``Generator.poisson`` then ``Generator.normal`` over
 the whole image from the capture's generator. 2: per block of :data:`BLOCK` values, the Poisson
 draws then float32 standard normals scaled by the read noise, from the block's child generator.
 Both are exact Poisson and Gaussian draws; only the numbers differ."""
-
-_pool: ThreadPoolExecutor | None = None
-_pool_lock = threading.Lock()
-
-
-def _threads() -> ThreadPoolExecutor:
-    """The camera's worker threads (one per usable core), started on first use."""
-    global _pool
-    with _pool_lock:
-        if _pool is None:
-            _pool = ThreadPoolExecutor(usable_cores(), thread_name_prefix="procam-camera")
-        return _pool
-
-
-def _forget_threads() -> None:
-    """In a forked child: the parent's threads are not there, start new ones when needed."""
-    global _pool, _pool_lock
-    _pool, _pool_lock = None, threading.Lock()
-
-
-os.register_at_fork(after_in_child=_forget_threads)
 
 
 def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_noise: float,
@@ -103,11 +78,7 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
         y = x.astype(np.float32)
         out[i:i + block.size] = y if convert is None else convert(y)
 
-    if len(starts) == 1:
-        finish(0, rngs[0])
-    else:
-        for done in [_threads().submit(finish, i, g) for i, g in zip(starts, rngs)]:
-            done.result()
+    run([partial(finish, i, g) for i, g in zip(starts, rngs)])
     return out.reshape(s.shape)
 
 

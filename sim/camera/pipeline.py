@@ -9,6 +9,7 @@ from sim.camera.optics import apply_optics
 from sim.camera.raw import (demosaic, dequantise_raw, jpeg, mosaic, quantise_raw,
                             white_balance_mosaic)
 from sim.camera.response import code_thresholds, codes
+from sim.camera.threads import blockwise
 
 WHITE_CLIPPED_FRACTION = 0.02
 """The exposure rule's "slightly over-exposed": the fraction of camera pixels whose noiseless
@@ -85,10 +86,10 @@ def capture(radiance: np.ndarray, cfg, rng: np.random.Generator) -> np.ndarray:
         raw = raw_signal(rad, cfg, rng)
         method = _key(cfg, "demosaic", "bilinear")
         if method == "vng":  # OpenCV's VNG is 8-bit only: demosaic the encoded mosaic
-            out = demosaic(codes(raw, cfg.response), pattern, method)
+            out = demosaic(blockwise(lambda b: codes(b, cfg.response), raw, np.uint8), pattern, method)
         else:
-            rgb = dequantise_raw(demosaic(quantise_raw(raw), pattern, method))
-            out = codes(rgb, cfg.response)
+            rgb = demosaic(quantise_raw(raw), pattern, method)
+            out = blockwise(lambda b: codes(dequantise_raw(b), cfg.response), rgb, np.uint8)
     quality = _key(cfg, "jpeg_quality", 0)
     return jpeg(out, quality) if quality else out
 

@@ -59,8 +59,12 @@ def mosaic(image: np.ndarray, pattern: str) -> np.ndarray:
     >>> mosaic(np.arange(12).reshape(2, 2, 3), "GRBG").tolist()
     [[1, 3], [8, 10]]
     """
-    h, w = image.shape[:2]
-    return np.take_along_axis(image, channel_map(pattern, w, h)[..., None], axis=2)[..., 0]
+    if pattern not in BAYER_PATTERNS:
+        raise ValueError(f"camera bayer = {pattern!r}: expected one of {', '.join(BAYER_PATTERNS)}")
+    out = np.empty(image.shape[:2], image.dtype)
+    for (dy, dx), colour in zip(((0, 0), (0, 1), (1, 0), (1, 1)), pattern):
+        out[dy::2, dx::2] = image[dy::2, dx::2, _CHANNEL[colour]]
+    return out
 
 
 @functools.lru_cache(maxsize=8)
