@@ -271,8 +271,9 @@ class CompenNetOptions(Options):
     profiles: ClassVar[dict[str, dict]] = {
         "paper": {},
         # CPU-sized: measured CompenNet training throughput (forward + backward + Adam, l1+ssim,
-        # fp32, torch 2.13 CPU, 2 free cores): 64² (batch 16) ~85-89 samples/s, 128² (batch 16)
-        # ~20, 256² (batch 8) ~3.4. 500 iterations x 16 = 8000 samples is ~95 s at 64². On the
+        # fp32, torch 2.13 CPU, 2 free cores; benchmarks/train.py): 64² (batch 16) ~40-46
+        # samples/s, 128² (batch 16) ~17, 256² (batch 8) ~3.7. 500 iterations x 16 = 8000 samples
+        # is ~3 min at 64². On the
         # shipped `default` setup at 64² (250 train / 100 test pairs) test PSNR was 22.9 dB after
         # 300 iterations and 24.4 dB after 500 (uncompensated 14.2 dB; 24.9 dB after 500 with the
         # official SSIM in the loss): still improving, so 500.
