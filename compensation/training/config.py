@@ -21,7 +21,7 @@ from sim.errors import ProcamError
 PROFILES: dict[str, dict] = {
     # The paper's setting, meant for a GPU.
     "paper": dict(n_train=500, n_test=200, size=256),
-    # CPU-sized: one CompenNet run trains in about two minutes on 2 cores at 64² (the method's own
+    # CPU-sized: one CompenNet run trains in about three minutes on 2 cores at 64² (the method's own
     # quick profile sets its iterations).
     "quick": dict(n_train=250, n_test=100, size=64),
 }
