@@ -128,7 +128,7 @@ def test_ambient_image_is_rendered_once_per_setup_in_a_process():
     # the ambient scene has no projector: a projector study's points share the image, and it is
     # the image each would render on its own
     moved = replace(setup, name="other", projector=replace(setup.projector, aperture=0.05,
-                                                           position=(0.1, 0.0, 0.0)))
+                                                           position=(0.1, 0.0, 1.0)))
     assert Renderer(moved, "direct", 4).ambient_radiance() is first
     render._ambient_memo.clear()
     np.testing.assert_array_equal(Renderer(moved, "direct", 4).ambient_radiance(), first)
