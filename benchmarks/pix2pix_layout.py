@@ -14,42 +14,26 @@ import statistics
 import time
 
 import torch
-import torch.nn.functional as F
 
-from compensation.methods.pix2pix import BETAS, Pix2Pix, init_normal, to_signed, unet_levels
+from compensation.methods.pix2pix import (BETAS, Pix2Pix, Pix2PixOptions, init_normal, to_signed,
+                                          training_step, unet_levels)
 
 
-def training_step(size: int, channels_last: bool):
-    """One pix2pix iteration (discriminator step, then generator step) as ``Pix2PixMethod.fit``
-    runs it, on fixed random images, in the given layout."""
+def timed_step(size: int, channels_last: bool):
+    """One pix2pix iteration (:func:`compensation.methods.pix2pix.training_step`, the default
+    options' learning rate and ℓ1 weight) on fixed random images, in the given layout."""
     torch.manual_seed(0)
     model = Pix2Pix(unet_levels(size, size))
     init_normal(model)
     layout = torch.channels_last if channels_last else torch.contiguous_format
     model = model.to(memory_format=layout)
     gen, disc = model.generator, model.discriminator
-    opt_g = torch.optim.Adam(gen.parameters(), lr=2e-4, betas=BETAS, fused=True)
-    opt_d = torch.optim.Adam(disc.parameters(), lr=2e-4, betas=BETAS, fused=True)
-    x, y = (torch.rand(1, 3, size, size).contiguous(memory_format=layout) for _ in range(2))
+    opt = Pix2PixOptions()
+    opt_g = torch.optim.Adam(gen.parameters(), lr=opt.lr, betas=BETAS, fused=True)
+    opt_d = torch.optim.Adam(disc.parameters(), lr=opt.lr, betas=BETAS, fused=True)
+    x, y = (to_signed(torch.rand(1, 3, size, size)).contiguous(memory_format=layout) for _ in range(2))
     model.train()
-
-    def step() -> None:
-        cond, real = to_signed(x), to_signed(y)
-        fake = gen(cond)
-        disc.requires_grad_(True)
-        opt_d.zero_grad(set_to_none=True)
-        fake_logits = disc(torch.cat([cond, fake.detach()], 1))
-        real_logits = disc(torch.cat([cond, real], 1))
-        (0.5 * (F.binary_cross_entropy_with_logits(fake_logits, torch.zeros_like(fake_logits))
-                + F.binary_cross_entropy_with_logits(real_logits, torch.ones_like(real_logits)))).backward()
-        opt_d.step()
-        disc.requires_grad_(False)
-        opt_g.zero_grad(set_to_none=True)
-        logits = disc(torch.cat([cond, fake], 1))
-        (F.binary_cross_entropy_with_logits(logits, torch.ones_like(logits))
-         + 100.0 * F.l1_loss(fake, real)).backward()
-        opt_g.step()
-    return step
+    return lambda: training_step(gen, disc, opt_g, opt_d, x, y, opt.l1_weight)
 
 
 def main() -> None:
@@ -57,8 +41,8 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--rounds", type=int, default=30)
     args = ap.parse_args()
-    steps = {"default layout": training_step(args.size, False),
-             "channels_last": training_step(args.size, True)}
+    steps = {"default layout": timed_step(args.size, False),
+             "channels_last": timed_step(args.size, True)}
     for step in steps.values():  # warm-up
         step()
         step()

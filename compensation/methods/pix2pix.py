@@ -297,6 +297,40 @@ def batch_statistics(model: nn.Module) -> Iterator[None]:
         model.train(was_training)
 
 
+def training_step(gen: torch.nn.Module, disc: torch.nn.Module, opt_g: torch.optim.Optimizer,
+                  opt_d: torch.optim.Optimizer, cond: torch.Tensor, real: torch.Tensor,
+                  l1_weight: float) -> torch.Tensor:
+    """One pix2pix iteration in the official update order, on images in [-1, 1].
+
+    G(x̃); one discriminator step on ½·(BCE(D(x̃, G(x̃)), 0) + BCE(D(x̃, x), 1)); one generator
+    step on BCE(D(x̃, G(x̃)), 1) + ``l1_weight``·ℓ1(G(x̃), x).
+
+    Returns
+    -------
+    torch.Tensor
+        (ℓ1 term in [0, 1] image units, generator GAN loss, discriminator loss), detached.
+    """
+    fake = gen(cond)
+
+    disc.requires_grad_(True)
+    opt_d.zero_grad(set_to_none=True)
+    logits_fake = disc(torch.cat([cond, fake.detach()], 1))
+    logits_real = disc(torch.cat([cond, real], 1))
+    loss_d = 0.5 * (F.binary_cross_entropy_with_logits(logits_fake, torch.zeros_like(logits_fake))
+                    + F.binary_cross_entropy_with_logits(logits_real, torch.ones_like(logits_real)))
+    loss_d.backward()
+    opt_d.step()
+
+    disc.requires_grad_(False)
+    opt_g.zero_grad(set_to_none=True)
+    logits = disc(torch.cat([cond, fake], 1))
+    loss_gan = F.binary_cross_entropy_with_logits(logits, torch.ones_like(logits))
+    loss_l1 = F.l1_loss(fake, real)
+    (loss_gan + l1_weight * loss_l1).backward()
+    opt_g.step()
+    return torch.stack([loss_l1.detach() / 2, loss_gan.detach(), loss_d.detach()])
+
+
 @dataclass(frozen=True)
 class Pix2PixOptions(Options):
     """Training options of pix2pix (the published configuration; training is fp32)."""
@@ -378,26 +412,8 @@ class Pix2PixMethod(Method):
         captures, frames = data.train.captures.to(device), data.train.frames.to(device)
 
         def step(idx: torch.Tensor) -> torch.Tensor:
-            cond, real = to_signed(captures[idx]), to_signed(frames[idx])
-            fake = gen(cond)
-
-            disc.requires_grad_(True)
-            opt_d.zero_grad(set_to_none=True)
-            logits_fake = disc(torch.cat([cond, fake.detach()], 1))
-            logits_real = disc(torch.cat([cond, real], 1))
-            loss_d = 0.5 * (F.binary_cross_entropy_with_logits(logits_fake, torch.zeros_like(logits_fake))
-                            + F.binary_cross_entropy_with_logits(logits_real, torch.ones_like(logits_real)))
-            loss_d.backward()
-            opt_d.step()
-
-            disc.requires_grad_(False)
-            opt_g.zero_grad(set_to_none=True)
-            logits = disc(torch.cat([cond, fake], 1))
-            loss_gan = F.binary_cross_entropy_with_logits(logits, torch.ones_like(logits))
-            loss_l1 = F.l1_loss(fake, real)
-            (loss_gan + opt.l1_weight * loss_l1).backward()
-            opt_g.step()
-            return torch.stack([loss_l1.detach() / 2, loss_gan.detach(), loss_d.detach()])
+            return training_step(gen, disc, opt_g, opt_d, to_signed(captures[idx]),
+                                 to_signed(frames[idx]), opt.l1_weight)
 
         model.train()
         stateful = {"model": model, "optimizer_g": opt_g, "optimizer_d": opt_d}

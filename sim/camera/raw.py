@@ -24,6 +24,11 @@ _CHANNEL = {"R": 0, "G": 1, "B": 2}
 _RAW_LEVELS = 65535
 
 
+def _check_pattern(pattern: str) -> None:
+    if pattern not in BAYER_PATTERNS:
+        raise ValueError(f"camera bayer = {pattern!r}: expected one of {', '.join(BAYER_PATTERNS)}")
+
+
 def channel_map(pattern: str, width: int, height: int) -> np.ndarray:
     """The colour channel (0 R, 1 G, 2 B) each pixel of a mosaic samples.
 
@@ -32,8 +37,7 @@ def channel_map(pattern: str, width: int, height: int) -> np.ndarray:
     >>> channel_map("RGGB", 4, 2).tolist()
     [[0, 1, 0, 1], [1, 2, 1, 2]]
     """
-    if pattern not in BAYER_PATTERNS:
-        raise ValueError(f"camera bayer = {pattern!r}: expected one of {', '.join(BAYER_PATTERNS)}")
+    _check_pattern(pattern)
     block = np.array([[_CHANNEL[pattern[0]], _CHANNEL[pattern[1]]],
                       [_CHANNEL[pattern[2]], _CHANNEL[pattern[3]]]], np.intp)
     return np.tile(block, ((height + 1) // 2, (width + 1) // 2))[:height, :width]
@@ -59,8 +63,7 @@ def mosaic(image: np.ndarray, pattern: str) -> np.ndarray:
     >>> mosaic(np.arange(12).reshape(2, 2, 3), "GRBG").tolist()
     [[1, 3], [8, 10]]
     """
-    if pattern not in BAYER_PATTERNS:
-        raise ValueError(f"camera bayer = {pattern!r}: expected one of {', '.join(BAYER_PATTERNS)}")
+    _check_pattern(pattern)
     out = np.empty(image.shape[:2], image.dtype)
     for (dy, dx), colour in zip(((0, 0), (0, 1), (1, 0), (1, 1)), pattern):
         out[dy::2, dx::2] = image[dy::2, dx::2, _CHANNEL[colour]]
