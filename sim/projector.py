@@ -28,6 +28,8 @@ from sim.io import to_float
 
 _SUPERSAMPLING = 15
 """Sub-samples per pixel side for the disk coverage (odd: one sub-sample sits on the centre)."""
+SHARP_DIAMETER = 1e-3
+"""Disk diameters (pixels) below this are a point: :func:`disk_kernel` gives the identity."""
 
 
 def emitted_irradiance(frame: np.ndarray, gamma: float, black_level: float,
@@ -75,12 +77,20 @@ def emitted_irradiance(frame: np.ndarray, gamma: float, black_level: float,
     if frame.dtype == np.uint8:
         x = to_float(frame)
     else:
-        x = frame.astype(np.float32)
+        x = np.ascontiguousarray(frame, np.float32)
         if not (x.min() >= 0.0 and x.max() <= 1.0):  # also rejects NaN
             raise ValueError(f"projector frame: float values must lie in [0, 1], got "
                              f"[{x.min():g}, {x.max():g}]")
-    primaries = np.float32(black_level) + np.float32(1 - black_level) * x ** np.float32(gamma)
-    return (primaries @ mix.T).astype(np.float32)
+    # OpenCV's pow and 3x4 affine transform: 4-5x less CPU than NumPy's float32 pow and matmul
+    # at 800x600, equal to float rounding (the pow to ~2e-6 relative). OpenCV's pow is ~10x
+    # slower on zeros (a panel's black bars), so they are lifted to 1e-12 and set to 0 after.
+    # The black level is the transform's offset: mixing @ (b + (1 - b) p) = (1 - b) mixing @ p
+    # + b mixing @ 1.
+    p = cv2.pow(np.maximum(x, np.float32(1e-12)), float(gamma))
+    np.copyto(p, 0.0, where=x == 0)
+    mix64 = mix.astype(np.float64)
+    affine = np.hstack([(1.0 - black_level) * mix64, black_level * mix64.sum(axis=1, keepdims=True)])
+    return cv2.transform(p, affine)
 
 
 def projector_irradiance(frame: np.ndarray, cfg) -> np.ndarray:
@@ -160,7 +170,8 @@ def disk_kernel(diameter_px: float) -> np.ndarray:
     Parameters
     ----------
     diameter_px : float
-        Disk diameter in pixels (>= 0); below 1e-3 the identity kernel ``[[1]]`` is returned.
+        Disk diameter in pixels (>= 0); below :data:`SHARP_DIAMETER` the identity kernel ``[[1]]``
+        is returned.
 
     Returns
     -------
@@ -176,7 +187,7 @@ def disk_kernel(diameter_px: float) -> np.ndarray:
     """
     if not diameter_px >= 0:
         raise ValueError(f"disk diameter: expected >= 0 pixels, got {diameter_px}")
-    if diameter_px < 1e-3:
+    if diameter_px < SHARP_DIAMETER:
         return np.ones((1, 1), np.float32)
     r = diameter_px / 2.0
     offsets = (np.arange(_SUPERSAMPLING) + 0.5) / _SUPERSAMPLING - 0.5
@@ -349,7 +360,7 @@ class Lens:
     diameters : numpy.ndarray or None
         float (H + 2 pad, W + 2 pad): defocus disk diameter in pixels of the light leaving each
         pixel of the padded grid (from the depth of the surface it lands on), or None when the
-        lens is in focus everywhere.
+        lens is in focus everywhere (every disk below :data:`SHARP_DIAMETER`).
     """
 
     panel: tuple[int, int]

@@ -67,7 +67,8 @@ def lens_for(setup: Setup) -> projector.Lens:
     Returns
     -------
     projector.Lens
-        A sharp lens without padding when ``psf_sigma`` and ``aperture`` are 0.
+        A sharp lens without padding when ``psf_sigma`` and ``aperture`` are 0; no defocus map
+        when the surface lies in focus everywhere (a plane at the focus distance, head-on).
     """
     p = setup.projector
     w, h = p.resolution
@@ -94,6 +95,8 @@ def lens_for(setup: Setup) -> projector.Lens:
     if pad > need:  # crop to the padding needed
         c = pad - need
         diameters, pad = diameters[c:-c, c:-c], need
+    if float(diameters.max()) < projector.SHARP_DIAMETER:  # in focus everywhere: a point each
+        return projector.Lens((w, h), pad, p.psf_sigma)
     return projector.Lens((w, h), pad, p.psf_sigma, np.ascontiguousarray(diameters, np.float32))
 
 

@@ -29,9 +29,10 @@ def test_gamma_curve_at_half():
     np.testing.assert_allclose(out, 0.02 + 0.98 * 0.5 ** 2.4, rtol=1e-6)
 
 
-def test_planted_mixing_matrix():
+@pytest.mark.parametrize("shape", [(4, 5, 3), (600, 800, 3)])  # a panel: OpenCV's vector paths
+def test_planted_mixing_matrix(shape):
     rng = np.random.default_rng(0)
-    x = rng.random((4, 5, 3))
+    x = rng.random(shape)
     mix = np.array([[0.9, 0.1, 0.0], [0.05, 0.8, 0.15], [0.0, 0.2, 0.7]])
     out = projector.emitted_irradiance(x, 2.0, 0.01, mix)
     primaries = 0.01 + 0.99 * x ** 2.0

@@ -103,6 +103,20 @@ def test_psf_width_energy_and_linearity():
     assert lens.apply(_dot((32, 32), 0, 0)).sum() == pytest.approx(3.0, abs=1e-5)
 
 
+def test_a_lens_focused_on_a_head_on_plane_has_no_defocus_map():
+    """An open aperture focused on a head-on plane blurs nothing: the lens is its PSF alone, so
+    each capture skips the (identity) defocus pass."""
+    keys = {"resolution": [32, 24], "psf_sigma": 0.6, "position": [0.0, 0.0, 1.0],
+            "look_at": [0.0, 0.0, 0.0], "focus_distance": 1.0}
+    lens = lens_for(tiny_setup(projector={**keys, "aperture": 0.02}))
+    psf_only = lens_for(tiny_setup(projector={**keys, "aperture": 0.0}))
+    assert lens.diameters is None and lens.pad == psf_only.pad
+    frame = np.random.default_rng(0).random((24, 32, 3)).astype(np.float32)
+    np.testing.assert_array_equal(lens.apply(frame), psf_only.apply(frame))
+    # out of focus, the same plane gets a map
+    assert lens_for(tiny_setup(projector={**keys, "aperture": 0.02, "focus_distance": 1.3})).diameters is not None
+
+
 def _corner_setup(aperture=0.4, **projector_keys):
     return tiny_setup(surface={"geometry": "corner", "size": [1.0, 1.0]},
                       projector={"resolution": [64, 64], "aperture": aperture, "focus_distance": 1.0,
