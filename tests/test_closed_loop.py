@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from compensation.data import load_setup_data
-from compensation.evaluation.closed_loop import (closed_loop, iterative_refinement, reachable_mask,
-                                                 reachable_overlay, simulator_for)
+from compensation.evaluation.closed_loop import (closed_loop, closed_loop_scores, iterative_refinement,
+                                                 reachable_mask, reachable_overlay, simulator_for)
 from compensation.evaluation.metrics import masked_scores, psnr, rmse
 from compensation.methods.base import Method, NoOptions
 from conftest import tiny_setup
@@ -109,6 +109,26 @@ def test_iterative_refinement_lowers_the_error_monotonically(textured):
     assert all(b < a for a, b in zip(rmse, rmse[1:])), rmse
     assert rmse[-1] < 0.5 * rmse[0]
     assert [r["projections"] for r in rows] == [4 * (k + 1) for k in range(5)]
+
+
+def test_iterative_refinement_starts_from_the_datasets_test_captures(textured):
+    """y projected as is was captured with the dataset: the oracle's first row scores those
+    captures (no new projection), and its corrections start from them."""
+    data, sim = textured
+    calls = []
+
+    class Counting:
+        def __getattr__(self, name):
+            return getattr(sim, name)
+
+        def capture(self, frames, stream, start=0):
+            calls.append(stream)
+            return sim.capture(frames, stream, start)
+
+    rows = iterative_refinement(data, Counting(), report=(0, 1))
+    y, mask = data.test.frames, reachable_mask(data, data.test.frames)
+    assert rows[0] == {"iterations": 0, **closed_loop_scores(data.test.captures, y, mask), "projections": 4}
+    assert len(calls) == 1 and rows[1]["projections"] == 8
 
 
 def test_reachable_mask_flags_what_the_projector_cannot_do(textured):

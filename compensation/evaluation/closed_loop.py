@@ -199,6 +199,8 @@ def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor 
     """Model-free feedback compensation (Nayar et al. 2003): the oracle row.
 
     Start from x₀ = y; project xₖ, capture cₖ, correct xₖ₊₁ = clip(xₖ + gain · (y − cₖ), 0, 1).
+    For the dataset's own test images (``desired`` None) c₀ is the dataset's test capture: y
+    projected as is was captured already, and is not projected again.
 
     Parameters
     ----------
@@ -216,7 +218,10 @@ def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor 
     x = y.clone()
     rows = []
     for k in range(max(report) + 1):
-        captured = project(sim, x, seeds.CLOSED_LOOP + 1 + k)
+        if k == 0 and desired is None:
+            captured = data.test.captures
+        else:
+            captured = project(sim, x, seeds.CLOSED_LOOP + 1 + k)
         if k in report:
             rows.append({"iterations": k, **closed_loop_scores(captured, y, mask),
                          "projections": int(y.shape[0]) * (k + 1)})
