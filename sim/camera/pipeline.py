@@ -2,6 +2,8 @@
 (:func:`rule_exposure`)."""
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from sim.camera.noise import expose
@@ -19,6 +21,22 @@ capture of plain white reaches code 255 in some channel."""
 def _key(cfg, name: str, default):
     """A hardware key of ``cfg``; objects without it (older configs, tests) have the effect off."""
     return getattr(cfg, name, default)
+
+
+@functools.lru_cache(maxsize=16)
+def raw_code_table(response: str) -> np.ndarray:
+    """The 8-bit code of each 16-bit raw code: ``codes(dequantise_raw(k), response)`` for k in
+    0..65535 (read-only), so a demosaiced image is encoded by one table lookup per value.
+
+    Examples
+    --------
+    >>> table = raw_code_table("gamma:2")
+    >>> table.shape, int(table[0]), int(table[16384]), int(table[65535])
+    ((65536,), 0, 128, 255)
+    """
+    table = codes(dequantise_raw(np.arange(65536, dtype=np.uint16)), response)
+    table.flags.writeable = False
+    return table
 
 
 def raw_signal(radiance: np.ndarray, cfg, rng: np.random.Generator | None) -> np.ndarray:
@@ -88,8 +106,7 @@ def capture(radiance: np.ndarray, cfg, rng: np.random.Generator) -> np.ndarray:
         if method == "vng":  # OpenCV's VNG is 8-bit only: demosaic the encoded mosaic
             out = demosaic(blockwise(lambda b: codes(b, cfg.response), raw, np.uint8), pattern, method)
         else:
-            rgb = demosaic(quantise_raw(raw), pattern, method)
-            out = blockwise(lambda b: codes(dequantise_raw(b), cfg.response), rgb, np.uint8)
+            out = np.take(raw_code_table(cfg.response), demosaic(quantise_raw(raw), pattern, method))
     quality = _key(cfg, "jpeg_quality", 0)
     return jpeg(out, quality) if quality else out
 
