@@ -28,7 +28,10 @@ from sim.setup import load_setup, scene_path
 
 PROFILE = "quick"
 METHODS = ("compennet", "tps")
-ORACLE_ITERATIONS = 8
+ORACLE_ITERATIONS = 4
+"""Feedback rounds of the demo's oracle row. On the default setup at the quick profile its
+closed-loop PSNR is 12.51 dB after 4 rounds and 12.52 after 8 (the reachable pixels: 29.4 and
+30.0 dB); each round is 100 captures."""
 N_FIGURE = 4
 
 

@@ -206,8 +206,8 @@ def test_schedule_uses_pix2pix_profiles_unless_overridden():
     assert sched(make_config("quick", method="pix2pix", iters=7)) == (7, 1)
     assert sched(make_config("quick", method="pix2pix", batch=4)) == (quick["iters"], 4)
     compennet = CompenNetOptions.profiles["quick"]
-    assert sched(make_config("quick", method="pix2pix", iters=compennet["iters"], batch=16)) == (
-        compennet["iters"], 16)  # an explicit value equal to CompenNet's is still honoured
+    assert sched(make_config("quick", method="pix2pix", iters=compennet["iters"], batch=compennet["batch"])) == (
+        compennet["iters"], compennet["batch"])  # an explicit value equal to CompenNet's is still honoured
     paper = make_config("paper", method="pix2pix").options
     assert (paper.lr, paper.l1_weight, paper.init) == (LR, LAMBDA_L1, None) == (2e-4, 100.0, None)
 
