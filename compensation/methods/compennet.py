@@ -270,12 +270,13 @@ class CompenNetOptions(Options):
 
     profiles: ClassVar[dict[str, dict]] = {
         "paper": {},
-        # CPU-sized: CompenNet trains at ~40 (batch 8) to ~47 (batch 16) samples/s at 64² on 2
-        # free cores, ~17 at 128², ~3.7 at 256² (benchmarks/train.py). On the default setup at
-        # 64² (250 training / 100 test pairs; benchmarks/results/patches/README.md) iterations
-        # count more than the batch: mean test PSNR of seeds 0 and 1 after 500 iterations is
-        # 23.45 dB at batch 16 (~170 s) and 23.30 dB at batch 8 (~100 s); 250 iterations at
-        # batch 16 give 22.51 dB in ~90 s. So 500 iterations of batch 8.
+        # CPU-sized: CompenNet trains at 40-54 samples/s at 64² on 2 free cores at batch 8 or 16
+        # (the machine's speed varies between runs), ~17 at 128², ~3.7 at 256²
+        # (benchmarks/train.py). On the default setup at 64² (250 training / 100 test pairs;
+        # benchmarks/results/patches/README.md) iterations count more than the batch: mean test
+        # PSNR of seeds 0 and 1 after 500 iterations is 23.45 dB at batch 16 (~170 s) and
+        # 23.30 dB at batch 8 (~100 s); 250 iterations at batch 16 give 22.51 dB in ~90 s.
+        # So 500 iterations of batch 8.
         # The learning-rate step keeps the paper's proportion (after 80 % of the iterations).
         "quick": dict(iters=500, batch=8, lr_step=400),
     }
