@@ -21,16 +21,15 @@ from sim.camera import noise_sigma
 from sim.setup import load_setups
 from sim.variant import use_variant
 
-MIS = {"type": "direct"}
-BSDF = {"type": "direct", "emitter_samples": 0, "bsdf_samples": 1}
 
-
-def render(setup, albedo, integrator: dict, spp: int, seed: int) -> tuple[np.ndarray, float]:
-    """The ambient image with ``integrator`` at ``spp``, and its render seconds."""
+def render(setup, albedo, mis: bool, spp: int, seed: int) -> tuple[np.ndarray, float]:
+    """The ambient image at ``spp`` as :func:`sim.scene.ambient_scene` renders it (BSDF
+    sampling), or with Mitsuba's plain ``direct`` integrator (``mis``), and its render seconds."""
     import mitsuba as mi
 
     d = scene.ambient_scene(setup, albedo, "direct", spp)
-    d["integrator"] = integrator
+    if mis:
+        d["integrator"] = scene.integrator_for(setup, "direct")
     sc = mi.load_dict(d)
     t0 = time.perf_counter()
     img = np.array(mi.render(sc, seed=seed), dtype=np.float32)
@@ -49,9 +48,9 @@ def main() -> None:
     setup = load_setups(args.setup)[0]
     setup = replace(setup, render=replace(setup.render, fidelity="direct"))
     albedo = scene.albedo_texture(setup)
-    for integrator in (MIS, BSDF):  # compile both kernels before timing
-        render(setup, albedo, integrator, 4, 0)
-    ref, ref_s = render(setup, albedo, BSDF, args.ref_spp, 99)
+    for mis in (True, False):  # compile both kernels before timing
+        render(setup, albedo, mis, 4, 0)
+    ref, ref_s = render(setup, albedo, False, args.ref_spp, 99)
     cam = setup.camera
     mean = float(ref.mean())
     sigma = float(noise_sigma(mean * args.exposure, cam.shot_noise, cam.read_noise)) / args.exposure
@@ -60,9 +59,9 @@ def main() -> None:
           f"signal {sigma:.3g} (exposure {args.exposure:g}); reference: BSDF sampling, "
           f"{args.ref_spp} spp ({ref_s:.1f} s)")
     print(f"{'sampling':<8} {'spp':>5} {'seconds':>8} {'rms error':>10} {'relative':>9} {'x noise':>8}")
-    for name, integrator in (("MIS", MIS), ("BSDF", BSDF)):
+    for name, mis in (("MIS", True), ("BSDF", False)):
         for spp in (int(s) for s in args.spps.split(",")):
-            img, seconds = render(setup, albedo, integrator, spp, 7)
+            img, seconds = render(setup, albedo, mis, spp, 7)
             err = float(np.sqrt(np.mean((img - ref) ** 2)))
             print(f"{name:<8} {spp:>5} {seconds:>8.2f} {err:>10.3g} {err / mean:>9.4f} {err / sigma:>8.4f}")
 

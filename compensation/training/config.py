@@ -21,8 +21,8 @@ from sim.errors import ProcamError
 PROFILES: dict[str, dict] = {
     # The paper's setting, meant for a GPU.
     "paper": dict(n_train=500, n_test=200, size=256),
-    # CPU-sized: one CompenNet run trains in about three minutes on 2 cores at 64² (the method's own
-    # quick profile sets its iterations).
+    # CPU-sized: one CompenNet run trains in about one and a half minutes on 2 cores at 64² (the
+    # method's own quick profile sets its iterations and batch).
     "quick": dict(n_train=250, n_test=100, size=64),
 }
 """Named settings common to every method: the training and test pairs, and ``size``, the canonical
