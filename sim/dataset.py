@@ -237,7 +237,7 @@ def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
     check_spp(setup, spp)
     registration.check_visible(setup, spec.size)
     record = {"variant": choose_variant(), "width": int(spec.size[0]), "height": int(spec.size[1]),
-              "frames": spec.source(), "noise_version": camera.NOISE_VERSION}
+              "frames": spec.source(), "noise_version": camera.noise_version()}
     if level != "auto":
         choice = resolve(setup, fidelity, spp)
         record.update(fidelity=choice.level, spp=choice.spp)
@@ -540,7 +540,7 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
                        "loaded_from_cache": r.loaded_from_cache} if r.fidelity == "transport" else None),
         "ambient_spp": setup.render.ambient_spp,
         "seeds": {"render": setup.render.seed, "frames": spec.seed,
-                  "streams": seeds.STREAMS, "noise_version": camera.NOISE_VERSION},
+                  "streams": seeds.STREAMS, "noise_version": camera.noise_version()},
         "width": int(spec.size[0]),  # canonical size, pixels
         "height": int(spec.size[1]),
         "camera_resolution": list(setup.camera.resolution),

@@ -112,6 +112,14 @@ def choose_variant() -> str:
     return chosen
 
 
+@functools.cache
+def llvm_usable() -> bool:
+    """Whether Dr.Jit's LLVM backend runs kernels in this process (memoised): known when
+    :func:`choose_variant` picks an LLVM variant, else (a CUDA, forced or fallback variant) probed
+    in a child process of its own."""
+    return choose_variant().startswith("llvm_") or probe("llvm_ad_rgb")
+
+
 def use_variant(name: str | None = None) -> str:
     """Set a variant on Mitsuba (idempotent) and return its name.
 

@@ -97,7 +97,7 @@ def test_unknown_response_lists_the_valid_forms(name, match):
         camera.encode(np.zeros(3), name)
 
 
-def test_sensor_noise_variance_matches_poisson_gaussian_model():
+def test_sensor_noise_variance_matches_poisson_gaussian_model(noise_version):
     rng = np.random.default_rng(12345)
     flat = np.full((128, 128, 3), 0.3, np.float32)
     s = camera.sensor_signal(flat, 1.0, (1.0, 1.0, 1.0), 1e-3, 1e-2, rng)
@@ -108,9 +108,20 @@ def test_sensor_noise_variance_matches_poisson_gaussian_model():
     assert float(camera.noise_sigma(0.3, 1e-3, 1e-2)) == pytest.approx(expected ** 0.5, rel=1e-12)
 
 
-def test_noise_blocks_are_independent_poisson_gaussian_draws():
-    """Version-2 noise: every block of ``camera.BLOCK`` values has the model's mean and variance,
-    and neighbouring blocks (their own child generators) are uncorrelated."""
+@pytest.fixture(params=[2, 3])
+def noise_version(request, monkeypatch):
+    """Each noise version in turn (version 3 where Dr.Jit's LLVM backend runs)."""
+    from sim.camera import noise
+    from sim.variant import llvm_usable
+    if request.param == 3 and not llvm_usable():
+        pytest.skip("Dr.Jit's LLVM backend is not usable here")
+    monkeypatch.setattr(noise, "noise_version", lambda: request.param)
+    return request.param
+
+
+def test_noise_blocks_are_independent_poisson_gaussian_draws(noise_version):
+    """Every block of ``camera.BLOCK`` values (version 2: its own child generator) has the
+    model's mean and variance, and neighbouring blocks are uncorrelated."""
     n = 4 * camera.BLOCK
     level, shot, read = 0.3, 1e-3, 1e-2
     s = camera.sensor_signal(np.full((n // 3 + 1, 3), level, np.float32), 1.0, (1.0, 1.0, 1.0), shot, read,
@@ -123,16 +134,23 @@ def test_noise_blocks_are_independent_poisson_gaussian_draws():
     assert np.abs(r).max() < 5 / camera.BLOCK ** 0.5  # independent streams, not shifted copies
 
 
-def test_noise_is_the_same_on_any_number_of_threads(monkeypatch):
+def test_noise_is_the_same_on_any_number_of_threads(monkeypatch, noise_version):
     from concurrent.futures import ThreadPoolExecutor
+
+    import drjit as dr
 
     from sim.camera import threads
     rad = np.random.default_rng(3).random((300, 200, 3), dtype=np.float32)  # several blocks
     cams = (cam(), cam(bayer="RGGB", demosaic="bilinear"), cam(bayer="GBRG", demosaic="vng"))
     outs = []
-    for workers in (1, 4):
-        monkeypatch.setattr(threads, "_pool", ThreadPoolExecutor(workers))
-        outs.append([camera.capture(rad, c, np.random.default_rng(11)) for c in cams])
+    cores = dr.thread_count()
+    try:
+        for workers in (1, 4):  # the camera's threads, and Dr.Jit's (version 3's kernel)
+            monkeypatch.setattr(threads, "_pool", ThreadPoolExecutor(workers))
+            dr.set_thread_count(workers)
+            outs.append([camera.capture(rad, c, np.random.default_rng(11)) for c in cams])
+    finally:
+        dr.set_thread_count(cores)
     for one, four in zip(*outs):  # the noise and the encoder of a demosaiced image run in blocks
         np.testing.assert_array_equal(one, four)
 
@@ -192,7 +210,7 @@ def test_quantisation_sigma_matches_simulated_rounding():
     assert float(camera.quantisation_sigma(0.0, "Gamma 2.2")) > 0
 
 
-def test_a_forked_child_draws_noise_with_its_own_threads():
+def test_a_forked_child_draws_noise_with_its_own_threads(noise_version):
     """The camera's thread pool does not survive fork(); a child starts its own (it would wait
     forever on the parent's threads otherwise)."""
     import multiprocessing

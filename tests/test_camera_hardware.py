@@ -21,8 +21,13 @@ LINEAR = replace(CameraConfig(), response="linear", shot_noise=0.0, read_noise=0
 
 
 def straightforward_noise(s, cfg, rng):
-    """Noise version 2 written plainly: float64 draws block by block of ``camera.BLOCK`` values,
-    block k from the k-th spawned child generator, one thread; the full-well clip; float32."""
+    """The noise of this process's version written plainly. Version 3: the kernel on the whole
+    signal, keyed by one 64-bit draw (its law is tested in ``test_camera_kernel.py``). Version 2:
+    float64 draws block by block of ``camera.BLOCK`` values, block k from the k-th spawned child
+    generator, one thread. Then the full-well clip; float32."""
+    if camera.noise_version() == 3:
+        from sim.camera.kernel import noisy_signal
+        return noisy_signal(s, cfg.shot_noise, cfg.read_noise, int(rng.integers(2**64, dtype=np.uint64)))
     flat, noisy = s.ravel(), []
     starts = range(0, flat.size, camera.BLOCK)
     for start, g in zip(starts, rng.spawn(len(starts))):

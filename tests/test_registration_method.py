@@ -54,7 +54,9 @@ def test_auto_on_a_plane_warps_by_the_estimated_homography(rendered):
     reg = _meta(rendered, "auto")["registration"]
     assert reg["method"] == "homography" and reg["requested"] == "auto" and reg["jitter"] == 0.0
     assert reg["homography"]["status"] == "ok"
-    assert reg["homography"]["mean_px"] < 0.1 and reg["homography"]["max_px"] < 0.3
+    # Over 8 noise realisations of this setup (either noise version) the mean error was 0.03-0.07
+    # px and the largest corner's 0.17-0.40 px.
+    assert reg["homography"]["mean_px"] < 0.1 and reg["homography"]["max_px"] < 0.5
     assert reg["visible_fraction"] == pytest.approx(reg["exact_visible_fraction"], abs=0.01)
     exact = _meta(rendered, "exact")["registration"]
     assert exact["method"] == "exact" and exact["homography"]["matrix"] == reg["homography"]["matrix"]

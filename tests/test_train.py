@@ -296,7 +296,11 @@ def test_official_checkpoint_file(run, nosurf_run, data, tmp_path, capsys):
                  "--out", str(tmp_path / "x.png")]) == 0
     # the CLI compensates its one image as a batch of one (a batch of two may round differently)
     single = compensate(run, desired[:1], device="cpu")
-    assert np.array_equal(read_png(tmp_path / "x.png"), to_uint8(single[0].permute(1, 2, 0).numpy()))
+    # (float rounding in the convolutions depends on the kernels oneDNN picks: on an AVX-512
+    # machine one code in 3072 differed by 1)
+    diff = np.abs(read_png(tmp_path / "x.png").astype(int)
+                  - to_uint8(single[0].permute(1, 2, 0).numpy()).astype(int))
+    assert diff.max() <= 1 and np.mean(diff > 0) < 1e-3
     assert main(["compensate", str(pth), str(tmp_path / "y.png"), "--out", str(tmp_path / "x.png")]) == 2
     assert "a state dict file needs --surface IMAGE" in capsys.readouterr().err
 

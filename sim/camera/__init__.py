@@ -19,10 +19,12 @@ The chain of :func:`capture`, each step skipped (at no cost) when its key is off
 9. JPEG compression and decompression at ``jpeg_quality`` (0: none).
 
 :func:`distort_points` maps ideal pinhole pixel coordinates to where the lens distortion shows
-them (for registration). The steps that run block by block (the noise, the encoder of a demosaiced
-image) share the camera's worker threads (:mod:`sim.camera.threads`).
+them (for registration). The noise is one Dr.Jit kernel on all cores (:mod:`sim.camera.kernel`;
+:func:`noise_version` names the streams); the steps that run block by block (the 8-bit encoder,
+the noise where Dr.Jit's LLVM backend is missing) share the camera's worker threads
+(:mod:`sim.camera.threads`).
 """
-from sim.camera.noise import BLOCK, NOISE_VERSION, expose, noise_sigma, sensor_signal
+from sim.camera.noise import BLOCK, expose, noise_sigma, noise_version, sensor_signal
 from sim.camera.optics import (apply_optics, blur, distort_image, distort_points,
                                vignetting_profile)
 from sim.camera.pipeline import WHITE_CLIPPED_FRACTION, capture, raw_signal, rule_exposure
@@ -35,6 +37,6 @@ __all__ = [
     "BAYER_PATTERNS", "BLOCK", "DEMOSAIC_METHODS", "RESPONSE_CURVES", "WHITE_CLIPPED_FRACTION",
     "apply_optics", "blur", "capture", "channel_map", "check_response", "code_thresholds", "codes",
     "decode", "demosaic", "distort_image", "distort_points", "encode", "expose", "jpeg", "mosaic",
-    "noise_sigma", "quantisation_sigma", "quantise", "raw_signal", "response_names",
+    "noise_sigma", "noise_version", "quantisation_sigma", "quantise", "raw_signal", "response_names",
     "rule_exposure", "sensor_signal", "vignetting_profile",
 ]

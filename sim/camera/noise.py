@@ -1,24 +1,36 @@
 """Poisson-Gaussian sensor noise: the noisy linear signal and its standard deviation.
 
-:func:`expose` draws the noise block by block (:data:`BLOCK` values each, in C order), block k
-from the k-th child of the capture's generator (``Generator.spawn``), and runs the blocks on
-parallel threads (NumPy's samplers release the GIL). A capture is therefore the same bit for bit
-on any number of threads; the streams are version :data:`NOISE_VERSION` (recorded in a dataset's
-``meta.json``).
+:func:`expose` draws the noise in one of two versions of the streams (:func:`noise_version`,
+recorded in a dataset's ``render.json`` and ``meta.json``); both are exact Poisson and Gaussian
+draws, only the numbers differ:
+
+* **3** (where Dr.Jit's LLVM backend runs, i.e. wherever procam renders on the CPU): the whole
+  image in one compiled kernel on all cores (:mod:`sim.camera.kernel`), value i from its own
+  generator keyed by one 64-bit draw from the capture's generator;
+* **2** (the fallback without a usable LLVM): block by block of :data:`BLOCK` values in C order,
+  block k from the k-th child of the capture's generator (``Generator.spawn``), NumPy's Poisson
+  draws then float32 standard normals scaled by the read noise, the blocks on the camera's threads.
+
+Either way a capture is the same bit for bit on any number of cores.
 """
 from __future__ import annotations
 
+import functools
 from functools import partial
 
 import numpy as np
 
-from sim.camera.threads import BLOCK, run
+from sim.camera.threads import BLOCK, blockwise, run
 
-NOISE_VERSION = 2
-"""Version of the camera-noise streams. 1: ``Generator.poisson`` then ``Generator.normal`` over
-the whole image from the capture's generator. 2: per block of :data:`BLOCK` values, the Poisson
-draws then float32 standard normals scaled by the read noise, from the block's child generator.
-Both are exact Poisson and Gaussian draws; only the numbers differ."""
+
+@functools.cache
+def noise_version() -> int:
+    """Version of the camera-noise streams in this process: 3 where Dr.Jit's LLVM backend runs,
+    else 2 (see the module). Version 1 (no longer drawn): ``Generator.poisson`` then
+    ``Generator.normal`` over the whole image from the capture's generator."""
+    from sim.variant import llvm_usable
+
+    return 3 if llvm_usable() else 2
 
 
 def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_noise: float,
@@ -28,9 +40,9 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
     ``s = values * exposure * gains`` (gains repeat along the last axis), clipped below at 0;
     ``shot_noise * Poisson(s / shot_noise)`` when ``shot_noise > 0``; plus a normal draw of
     standard deviation ``read_noise`` per value when ``read_noise > 0``; clipped to [0, 1] and cast
-    to float32; then ``convert`` (e.g. the 8-bit encoder). The variance before the clip is
-    ``shot_noise * s + read_noise**2``. The values are processed in blocks of :data:`BLOCK` on the
-    camera's threads, each block's noise from its own child of ``rng`` (see the module).
+    to float32; then ``convert`` (e.g. the 8-bit encoder), on the camera's threads. The variance
+    before the clip is ``shot_noise * s + read_noise**2``. The streams are those of
+    :func:`noise_version` (see the module).
 
     Parameters
     ----------
@@ -43,9 +55,9 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
     shot_noise, read_noise : float
         As in :func:`sensor_signal`.
     rng : numpy.random.Generator or None
-        Needed unless both noise terms are 0; its children are spawned (``Generator.spawn``).
+        Needed unless both noise terms are 0.
     convert : callable, optional
-        float32 block -> block of ``dtype``; called from several threads at once.
+        float32 block -> block of ``dtype``, elementwise; called from several threads at once.
     dtype : numpy dtype
         Of the result.
 
@@ -61,6 +73,11 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
     if gains is not None:
         s *= np.asarray(gains, np.float32)
     np.maximum(s, 0.0, out=s)
+    if noisy and noise_version() == 3:
+        from sim.camera.kernel import noisy_signal
+
+        x = noisy_signal(s, shot_noise, read_noise, int(rng.integers(2**64, dtype=np.uint64)))
+        return x if convert is None else blockwise(convert, x, dtype)
     flat = s.ravel()
     out = np.empty(flat.shape, dtype)
     starts = range(0, flat.size, BLOCK)

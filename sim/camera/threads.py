@@ -1,6 +1,6 @@
 """The camera's worker threads: one per usable core, shared by the steps of
-:func:`sim.camera.capture` that run block by block (the noise draws, the 8-bit encoder of a
-demosaiced image). NumPy's samplers and ufuncs release the GIL, so the blocks run in parallel;
+:func:`sim.camera.capture` that run block by block (the 8-bit encoder; the noise draws of
+version 2, :mod:`sim.camera.noise`). NumPy's samplers and ufuncs release the GIL, so the blocks run in parallel;
 each block's result is written to its own slice, so the output is the same on any number of
 threads."""
 from __future__ import annotations
@@ -16,7 +16,7 @@ import numpy as np
 from sim.cores import usable_cores
 
 BLOCK = 1 << 15
-"""Values per block of :func:`blockwise` (and of the noise draws, :mod:`sim.camera.noise`):
+"""Values per block of :func:`blockwise` (and of version 2's noise draws, :mod:`sim.camera.noise`):
 a block's float64 temporaries stay in a core's cache."""
 
 _pool: ThreadPoolExecutor | None = None
