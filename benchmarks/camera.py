@@ -3,7 +3,8 @@ side by side in one run, and the cost of every hardware effect at a camera's nat
 
 The reference is the earlier camera model, kept here only: float64 ``Generator.poisson`` and
 ``Generator.normal`` noise on the whole image from one generator (noise version 1), then the
-response curve through colour-science and ``rint(255 x)``. Both run interleaved on the same
+response curve through colour-science and ``rint(255 x)``. ``sim.camera.capture`` draws the noise
+of this process's version (``sim.camera.noise_version()``, printed). Both run interleaved on the same
 radiance (a smooth random image in the camera's working range), so machine load hits both alike;
 the figures are the best of ``--repeat`` runs of each, wall time and CPU time of this process
 (the CPU time sums the camera's threads: its ratio is the gain on one core).
@@ -47,7 +48,10 @@ def scene(width: int, height: int, seed: int = 0) -> np.ndarray:
 
 def timed(fn) -> tuple[float, float]:
     """(wall, CPU) seconds of one call; the CPU time of this process is less disturbed by other
-    processes on a busy machine."""
+    processes on a busy machine. Starts after a pause of 50 ms: Dr.Jit's worker threads keep
+    spinning for more work for a while after a kernel (~20 ms of CPU), which would otherwise be
+    counted to the next call."""
+    time.sleep(0.05)
     w, c = time.perf_counter(), time.process_time()
     fn()
     return time.perf_counter() - w, time.process_time() - c
@@ -61,8 +65,9 @@ def main() -> None:
     hardware = replace(base, psf_sigma=0.7, bayer="RGGB", demosaic="bilinear", vignetting=0.3,
                        distortion=-0.05, jpeg_quality=90)
     paper = load_setup(scene_path("default")).camera  # the paper-hardware default's own camera
-    print(f"camera model, best of {args.repeat} (ms, wall / CPU); {usable_cores()} cores; default "
-          f"camera: {base.response}, shot_noise {base.shot_noise}, read_noise {base.read_noise}")
+    print(f"camera model, best of {args.repeat} (ms, wall / CPU); {usable_cores()} cores; noise "
+          f"version {camera.noise_version()}; default camera: {base.response}, shot_noise "
+          f"{base.shot_noise}, read_noise {base.read_noise}")
     for width, height in ((256, 256), (960, 640)):
         rad = scene(width, height)
         runs = {"before": [], "after": [], "hardware": [], "paper": []}

@@ -59,7 +59,7 @@ def log_factorial(k: Float64) -> Float64:
 
 def _streams(key: int, n: int) -> PCG32:
     """One PCG32 generator per value, seeded from Philox4x32 (see the module)."""
-    w = Philox4x32(UInt64(key), dr.arange(UInt32, n)).next_uint32x4()
+    w = Philox4x32(dr.opaque(UInt64, key), dr.arange(UInt32, n)).next_uint32x4()
     state = UInt64(w[0]) | (UInt64(w[1]) << 32)
     sequence = UInt64(w[2]) | (UInt64(w[3]) << 32)
     rng = PCG32(n)
@@ -132,12 +132,15 @@ def noisy_signal(signal: np.ndarray, shot_noise: float, read_noise: float, key: 
     s = np.ascontiguousarray(signal, np.float32)
     if s.size == 0:
         return s.copy()
+    # the key and the noise levels enter as opaque values, not literals: one compiled kernel
+    # serves every capture (a literal would compile, and cache on disk, a kernel per capture)
     x = Float64(Float32(s.ravel()))
     rng = _streams(key, s.size)
     if shot_noise > 0:
-        x = _poisson(rng, x / shot_noise) * shot_noise
+        gain = dr.opaque(Float64, shot_noise)
+        x = _poisson(rng, x / gain) * gain
     if read_noise > 0:
         u1 = 1.0 - rng.next_float64()
         u2 = rng.next_float64()
-        x += read_noise * dr.sqrt(-2.0 * dr.log(u1)) * dr.cos(2.0 * math.pi * u2)
+        x += dr.opaque(Float64, read_noise) * dr.sqrt(-2.0 * dr.log(u1)) * dr.cos(2.0 * math.pi * u2)
     return Float32(dr.clip(x, 0.0, 1.0)).numpy().reshape(s.shape)
