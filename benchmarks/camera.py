@@ -9,7 +9,7 @@ radiance (a smooth random image in the camera's working range), so machine load 
 the figures are the best of ``--repeat`` runs of each, wall time and CPU time of this process
 (the CPU time sums the camera's threads: its ratio is the gain on one core).
 
-    .venv/bin/python benchmarks/camera.py [--repeat 15]
+    .venv/bin/python benchmarks/camera.py [--repeat 15] [--pause 0.05]
 """
 from __future__ import annotations
 
@@ -46,12 +46,12 @@ def scene(width: int, height: int, seed: int = 0) -> np.ndarray:
     return cv2.resize(low, (width, height), interpolation=cv2.INTER_CUBIC).clip(0, 1) * 0.95 + 0.02
 
 
-def timed(fn) -> tuple[float, float]:
-    """(wall, CPU) seconds of one call; the CPU time of this process is less disturbed by other
-    processes on a busy machine. Starts after a pause of 50 ms: Dr.Jit's worker threads keep
-    spinning for more work for a while after a kernel (~20 ms of CPU), which would otherwise be
-    counted to the next call."""
-    time.sleep(0.05)
+def timed(fn, pause: float) -> tuple[float, float]:
+    """(wall, CPU) seconds of one call, after ``pause`` seconds; the CPU time of this process is
+    less disturbed by other processes on a busy machine. Dr.Jit's worker threads keep spinning for
+    more work for a while after a kernel (~20 ms of CPU): without a pause that CPU time is counted
+    to the next call, with one the call starts with every worker thread asleep."""
+    time.sleep(pause)
     w, c = time.perf_counter(), time.process_time()
     fn()
     return time.perf_counter() - w, time.process_time() - c
@@ -60,12 +60,15 @@ def timed(fn) -> tuple[float, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=15)
+    parser.add_argument("--pause", type=float, default=0.05,
+                        help="seconds of rest before each timed call (0: back to back)")
     args = parser.parse_args()
     base = CameraConfig()
     hardware = replace(base, psf_sigma=0.7, bayer="RGGB", demosaic="bilinear", vignetting=0.3,
                        distortion=-0.05, jpeg_quality=90)
     paper = load_setup(scene_path("default")).camera  # the paper-hardware default's own camera
-    print(f"camera model, best of {args.repeat} (ms, wall / CPU); {usable_cores()} cores; noise "
+    print(f"camera model, best of {args.repeat} (ms, wall / CPU), {args.pause * 1e3:g} ms rest before "
+          f"each call; {usable_cores()} cores; noise "
           f"version {camera.noise_version()}; default camera: {base.response}, shot_noise "
           f"{base.shot_noise}, read_noise {base.read_noise}")
     for width, height in ((256, 256), (960, 640)):
@@ -74,10 +77,11 @@ def main() -> None:
         for cfg in (hardware, paper):
             camera.capture(rad, cfg, np.random.default_rng(1))  # builds the cached maps
         for _ in range(args.repeat):  # interleaved: the same load for all
-            runs["after"].append(timed(lambda: camera.capture(rad, base, np.random.default_rng(1))))
-            runs["before"].append(timed(lambda: reference_capture(rad, base, np.random.default_rng(1))))
-            runs["hardware"].append(timed(lambda: camera.capture(rad, hardware, np.random.default_rng(1))))
-            runs["paper"].append(timed(lambda: camera.capture(rad, paper, np.random.default_rng(1))))
+            for name, fn in (("after", lambda: camera.capture(rad, base, np.random.default_rng(1))),
+                             ("before", lambda: reference_capture(rad, base, np.random.default_rng(1))),
+                             ("hardware", lambda: camera.capture(rad, hardware, np.random.default_rng(1))),
+                             ("paper", lambda: camera.capture(rad, paper, np.random.default_rng(1)))):
+                runs[name].append(timed(fn, args.pause))
         best = {k: np.min(np.array(v), axis=0) * 1e3 for k, v in runs.items()}
         ratio = best["before"] / best["after"]
         print(f"{width}x{height}: before {best['before'][0]:7.2f} / {best['before'][1]:7.2f}   "

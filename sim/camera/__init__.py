@@ -20,9 +20,8 @@ The chain of :func:`capture`, each step skipped (at no cost) when its key is off
 
 :func:`distort_points` maps ideal pinhole pixel coordinates to where the lens distortion shows
 them (for registration). The noise is one Dr.Jit kernel on all cores (:mod:`sim.camera.kernel`;
-:func:`noise_version` names the streams); the steps that run block by block (the 8-bit encoder,
-the noise where Dr.Jit's LLVM backend is missing) share the camera's worker threads
-(:mod:`sim.camera.threads`).
+:func:`noise_version` names the streams); the 8-bit encoder runs block by block, and the noise
+where Dr.Jit's LLVM backend is missing on the camera's worker threads (:mod:`sim.camera.threads`).
 """
 from sim.camera.noise import BLOCK, expose, noise_sigma, noise_version, sensor_signal
 from sim.camera.optics import (apply_optics, blur, distort_image, distort_points,

@@ -25,7 +25,7 @@ import math
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float32, Float64, PCG32, Philox4x32, UInt32, UInt64
+from drjit.llvm import Bool, Float32, Float64, PCG32, Philox4x32, UInt32, UInt64
 
 REJECTION_MIN = 10.0
 """Means from which the Poisson draws use transformed rejection (NumPy's threshold)."""
@@ -83,10 +83,15 @@ def _poisson(rng: PCG32, mean: Float64) -> Float64:
         us = 0.5 - dr.abs(u)
         kk = dr.floor((2.0 * a / us + b) * u + mean + 0.43)
         squeeze = (us >= 0.07) & (v <= vr)
-        refused = (kk < 0) | ((us < 0.013) & (v > us))
-        test = (dr.log(v) + log_invalpha - dr.log(a / (us * us) + b)
-                <= -mean + kk * loglam - log_factorial(dr.maximum(kk, 0.0)))
-        accept = squeeze | (~refused & test)
+        tested = ~squeeze & (kk >= 0) & ((us >= 0.013) | (v <= us))
+
+        def test(v, us, kk):
+            return (dr.log(v) + log_invalpha - dr.log(a / (us * us) + b)
+                    <= -mean + kk * loglam - log_factorial(dr.maximum(kk, 0.0)))
+
+        # a branch: packets of values that the squeeze decided skip the logarithms and the series
+        passed = dr.if_stmt((v, us, kk), tested, test, lambda v, us, kk: dr.zeros(Bool, dr.width(v)))
+        accept = squeeze | (tested & passed)
         return rng, dr.select(accept, kk, k), accept
 
     rng, k, _ = dr.while_loop((rng, dr.zeros(Float64, dr.width(mean)), ~large),

@@ -40,7 +40,7 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
     ``s = values * exposure * gains`` (gains repeat along the last axis), clipped below at 0;
     ``shot_noise * Poisson(s / shot_noise)`` when ``shot_noise > 0``; plus a normal draw of
     standard deviation ``read_noise`` per value when ``read_noise > 0``; clipped to [0, 1] and cast
-    to float32; then ``convert`` (e.g. the 8-bit encoder), on the camera's threads. The variance
+    to float32; then ``convert`` (e.g. the 8-bit encoder), block by block. The variance
     before the clip is ``shot_noise * s + read_noise**2``. The streams are those of
     :func:`noise_version` (see the module).
 
@@ -57,7 +57,8 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
     rng : numpy.random.Generator or None
         Needed unless both noise terms are 0.
     convert : callable, optional
-        float32 block -> block of ``dtype``, elementwise; called from several threads at once.
+        float32 block -> block of ``dtype``, elementwise; called from several threads at once
+        (version 2).
     dtype : numpy dtype
         Of the result.
 
