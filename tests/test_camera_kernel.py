@@ -75,6 +75,14 @@ def test_read_noise_is_standard_normal_in_its_tails():
     assert abs(z.mean()) < 5 / math.sqrt(z.size) and z.std() == pytest.approx(1.0, abs=0.005)
 
 
+def test_uniforms_have_53_random_bits():
+    """Not Dr.Jit's 32-bit ``next_float64``: its grid would stop the Gaussian tail at 6.7 sigma."""
+    u = np.asarray(kernel._uniform(dr.llvm.PCG32(100_000)))
+    assert 0 <= u.min() and u.max() < 1
+    assert np.mean(u * 2.0**32 == np.floor(u * 2.0**32)) < 0.01
+    assert np.all(u * 2.0**53 == np.floor(u * 2.0**53))
+
+
 def test_log_factorial_matches_lgamma():
     k = np.concatenate([np.arange(0, 200), [1e3, 12345, 1e6, 1e9]])
     got = np.asarray(kernel.log_factorial(dr.llvm.Float64(k)))

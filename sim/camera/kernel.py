@@ -4,8 +4,10 @@ Gaussian draws by Dr.Jit's LLVM backend on all cores (noise version 3, :mod:`sim
 Streams
     Value i of a capture draws its uniforms from its own PCG32 generator, whose state and
     increment are the four words of Philox4x32 at key ``key`` and counter i (``key``: one 64-bit
-    draw from the capture's NumPy generator). A capture is the same on any number of cores, and
-    no two values share or overlap a stream. A float64 uniform takes two PCG32 outputs.
+    draw from the capture's NumPy generator), so a capture is the same on any number of cores.
+    Every uniform has 53 random bits, as NumPy's ``random()``: a 64-bit output (two PCG32 steps)
+    cut to 53 bits. (Dr.Jit's ``next_float64`` has 32, which would stop the Gaussian tail at 6.7
+    sigma; the 53 bits cost 3 % of the kernel's time.)
 Poisson draws (mean ``m``)
     NumPy's algorithms, run per value in a vectorised loop: below :data:`REJECTION_MIN`,
     multiplication of uniforms until the product falls to ``exp(-m)``; from it on, transformed
@@ -14,7 +16,7 @@ Poisson draws (mean ``m``)
     values below.
 Gaussian draws
     Box-Muller's cosine branch, ``sqrt(-2 log(1 - u1)) cos(2 pi u2)``: one standard normal from two
-    uniforms.
+    uniforms; with 53-bit uniforms the radius reaches 8.6 sigma.
 
 All three are exact samplers (up to float64 rounding), so the law is NumPy's; the numbers are not.
 The tests compare the law against the Poisson probabilities and the normal distribution.
@@ -67,6 +69,11 @@ def _streams(key: int, n: int) -> PCG32:
     return rng
 
 
+def _uniform(rng: PCG32) -> Float64:
+    """A uniform float64 on [0, 1) with 53 random bits (two PCG32 steps)."""
+    return Float64(rng.next_uint64() >> 11) * 2.0 ** -53
+
+
 def _poisson(rng: PCG32, mean: Float64) -> Float64:
     """Exact Poisson draws of ``mean`` (>= 0), advancing ``rng`` (see the module)."""
     slam = dr.sqrt(mean)
@@ -78,8 +85,8 @@ def _poisson(rng: PCG32, mean: Float64) -> Float64:
     large = mean >= REJECTION_MIN
 
     def attempt(rng, k, done):
-        u = rng.next_float64() - 0.5
-        v = rng.next_float64()
+        u = _uniform(rng) - 0.5
+        v = _uniform(rng)
         us = 0.5 - dr.abs(u)
         kk = dr.floor((2.0 * a / us + b) * u + mean + 0.43)
         squeeze = (us >= 0.07) & (v <= vr)
@@ -99,7 +106,7 @@ def _poisson(rng: PCG32, mean: Float64) -> Float64:
     limit = dr.exp(-mean)
 
     def multiply(rng, prod, x, done):
-        prod = prod * rng.next_float64()
+        prod = prod * _uniform(rng)
         more = prod > limit
         return rng, prod, dr.select(more, x + 1.0, x), ~more
 
@@ -145,7 +152,7 @@ def noisy_signal(signal: np.ndarray, shot_noise: float, read_noise: float, key: 
         gain = dr.opaque(Float64, shot_noise)
         x = _poisson(rng, x / gain) * gain
     if read_noise > 0:
-        u1 = 1.0 - rng.next_float64()
-        u2 = rng.next_float64()
+        u1 = 1.0 - _uniform(rng)
+        u2 = _uniform(rng)
         x += dr.opaque(Float64, read_noise) * dr.sqrt(-2.0 * dr.log(u1)) * dr.cos(2.0 * math.pi * u2)
     return Float32(dr.clip(x, 0.0, 1.0)).numpy().reshape(s.shape)
