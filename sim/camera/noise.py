@@ -15,7 +15,6 @@ Either way a capture is the same bit for bit on any number of cores.
 """
 from __future__ import annotations
 
-import functools
 from functools import partial
 
 import numpy as np
@@ -23,11 +22,11 @@ import numpy as np
 from sim.camera.threads import BLOCK, blockwise, run
 
 
-@functools.cache
 def noise_version() -> int:
     """Version of the camera-noise streams in this process: 3 where Dr.Jit's LLVM backend runs,
-    else 2 (see the module). Version 1 (no longer drawn): ``Generator.poisson`` then
-    ``Generator.normal`` over the whole image from the capture's generator."""
+    else 2 (see the module; :func:`sim.variant.llvm_usable` memoises the answer). Version 1 (no
+    longer drawn): ``Generator.poisson`` then ``Generator.normal`` over the whole image from the
+    capture's generator."""
     from sim.variant import llvm_usable
 
     return 3 if llvm_usable() else 2
