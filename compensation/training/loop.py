@@ -4,7 +4,9 @@ A method supplies a *step*: given the indices of this iteration's batch it updat
 and returns the iteration's loss values (a 1-D tensor, the first being the one reported). The loop
 draws the batches (:class:`BatchSampler`), records the values, stops with a clear error when one
 becomes NaN or infinite, shows a progress bar, times the whole fit, and checkpoints so that a
-killed or interrupted fit resumes bit for bit.
+killed or interrupted fit resumes bit for bit. While it runs, freed memory stays in the process's
+heap for the next step (:func:`sim.heap.retained_heap`): the steps allocate the same large arrays
+again and again.
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ from tqdm import tqdm
 from compensation.evaluation.losses import get_loss
 from compensation.training.conv_grad import nchw_weight_gradients
 from sim.errors import ProcamError
+from sim.heap import retained_heap
 from sim.io import atomic_write
 
 if TYPE_CHECKING:
@@ -305,7 +308,7 @@ def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int,
         done, spent = _load_checkpoint(Path(checkpoint), values, batches, stateful)
     start = time.perf_counter() - spent
     with tqdm(total=iters, initial=done, desc=desc, unit="it", disable=not progress) as bar, \
-            _Interrupt() as interrupt:
+            _Interrupt() as interrupt, retained_heap():
         for it in range(done, iters):
             values[it] = step(next(batches).to(device))
             bar.update()
