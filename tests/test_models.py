@@ -151,3 +151,17 @@ def test_gradients_reach_both_branches_through_broadcast_surface(images):
     for name in ("conv1", "conv1_s", "conv4_s", "transConv2", "skipConv1.0"):
         grad = model.get_submodule(name).weight.grad
         assert grad is not None and grad.abs().sum() > 0, name
+
+
+@pytest.mark.parametrize("layout", [torch.contiguous_format, torch.channels_last])
+def test_broadcast_surface_gradients_equal_per_sample_ones(images, layout):
+    # the surface terms' gradient is summed over the batch by sum_over_batch, not by autograd
+    x, s = (t.contiguous(memory_format=layout) for t in images)
+    grads = []
+    for surface in (s, s.expand(N, -1, -1, -1).contiguous(memory_format=layout)):
+        model = seeded().to(memory_format=layout).train()
+        model(x, surface).square().mean().backward()
+        grads.append({n: p.grad for n, p in model.named_parameters()})
+    for name, grad in grads[0].items():
+        torch.testing.assert_close(grad, grads[1][name], rtol=1e-4, atol=1e-7, msg=name)
+    assert grads[0]["conv4_s.weight"].abs().sum() > 0

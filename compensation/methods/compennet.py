@@ -79,6 +79,48 @@ def _check_images(name: str, t: Tensor) -> None:
                          f"got {h}x{w} (H x W)")
 
 
+def sum_over_batch(t: Tensor) -> Tensor:
+    """Sum of ``t`` (N, C, H, W) over its batch, (1, C, H, W) in ``t``'s memory layout.
+
+    In the default and the channels-last layout each sample is one contiguous block, so the sum
+    is one reduction over N rows of C·H·W values; ``t.sum(0, keepdim=True)`` on a channels-last
+    tensor measured 8-11× slower on the CPU. The sums are the same to float rounding.
+
+    Examples
+    --------
+    >>> t = torch.rand(4, 8, 5, 6).contiguous(memory_format=torch.channels_last)
+    >>> s = sum_over_batch(t)
+    >>> s.shape, s.is_contiguous(memory_format=torch.channels_last)
+    (torch.Size([1, 8, 5, 6]), True)
+    >>> torch.allclose(s, t.sum(0, keepdim=True))
+    True
+    """
+    n, c, h, w = t.shape
+    if t.is_contiguous(memory_format=torch.channels_last) and not t.is_contiguous():
+        return t.permute(0, 2, 3, 1).reshape(n, -1).sum(0).view(1, h, w, c).permute(0, 3, 1, 2)
+    return t.reshape(n, -1).sum(0).view(1, c, h, w)
+
+
+class _AddSurface(torch.autograd.Function):
+    """``t + f`` for a surface feature ``f`` of batch 1 broadcast over ``t``'s batch; ``f``'s
+    gradient is :func:`sum_over_batch` of the output's."""
+
+    @staticmethod
+    def forward(ctx, t: Tensor, f: Tensor) -> Tensor:
+        return t + f
+
+    @staticmethod
+    def backward(ctx, grad: Tensor) -> tuple[Tensor, Tensor | None]:
+        return grad, sum_over_batch(grad) if ctx.needs_input_grad[1] else None
+
+
+def _add_surface(t: Tensor, f: Tensor | int) -> Tensor:
+    """``t + f``: a backbone convolution's output plus its surface term (0 without the branch)."""
+    if isinstance(f, Tensor) and f.shape[0] == 1 < t.shape[0]:
+        return _AddSurface.apply(t, f)
+    return t + f
+
+
 class CompenNet(nn.Module):
     """CompenNet, optionally without the surface branch ("CompenNet w/o surf").
 
@@ -193,12 +235,12 @@ class CompenNet(nn.Module):
         # Without the surface branch the surface terms are zero (adding 0 leaves the values as is).
         res_s = self._surface_terms(x, s, features) if self.surface else (0, 0, 0, 0)
         res1 = self.skipConv1(x)
-        x = self.relu(self.conv1(x) + res_s[0])
+        x = self.relu(_add_surface(self.conv1(x), res_s[0]))
         res2 = self.skipConv2(x)
-        x = self.relu(self.conv2(x) + res_s[1])
+        x = self.relu(_add_surface(self.conv2(x), res_s[1]))
         res3 = self.skipConv3(x)
-        x = self.relu(self.conv3(x) + res_s[2])
-        x = self.relu(self.conv4(x) + res_s[3])
+        x = self.relu(_add_surface(self.conv3(x), res_s[2]))
+        x = self.relu(_add_surface(self.conv4(x), res_s[3]))
         x = self.relu(self.conv5(x) + res3)
         x = self.relu(self.transConv1(x) + res2)
         x = self.relu(self.transConv2(x))
