@@ -1,32 +1,38 @@
 """Training benchmark: CompenNet samples/second of the naive loop against procam's, each speed-up
-as a step of its own, measured side by side in one run (the steps take turns, one training step
-each per round, and each reports its median), so a machine shared with other jobs slows them alike.
+as a step of its own, measured side by side in one run: each step runs in a process of its own
+(so that one step's memory policy and allocations do not touch another's), and the steps take
+turns, one training step each per round with a short pause between, each reporting its median;
+a machine shared with other jobs slows them alike.
 
 Steps (each adds to the one above):
 
 * ``naive``: the surface branch run per sample (s̃ repeated over the batch), default memory layout,
   pytorch-msssim's SSIM in the loss;
-* ``surface once``: s̃ with batch 1, encoded once per batch and broadcast;
+* ``surface once``: s̃ with batch 1, encoded once per batch and broadcast (its gradient summed over
+  the batch by :func:`~compensation.methods.compennet.sum_over_batch`);
 * ``channels_last``: network and images in the channels-last memory layout;
 * ``ssim``: procam's SSIM (per-channel 1-D Gaussian passes in the channels-last layout);
 * ``inplace relu``: in-place ReLUs;
 * ``nchw weight grad``: the wide convolutions' weight gradients taken in the default layout
-  (:mod:`compensation.training.conv_grad`) — procam's CPU training step (:func:`fit_network`);
+  (:mod:`compensation.training.conv_grad`);
+* ``retained heap``: freed memory kept in the heap for the next step (:mod:`sim.heap`) — procam's
+  CPU training step (:func:`~compensation.training.loop.fit_network`);
 * ``compile`` (``--compile``): ``torch.compile`` of the network on top.
 
 Then, with ``--data``, the `quick` profile's training time and test PSNR/SSIM on the default setup.
 
     .venv/bin/python benchmarks/train.py [--sizes 128,256] [--batches 16,8] [--rounds 7]
-                                         [--threads N] [--compile] [--data out/data]
+                                         [--threads N] [--pause S] [--compile] [--data out/data]
 """
 from __future__ import annotations
 
 import argparse
 import copy
+import multiprocessing
 import os
 import statistics
 import time
-from contextlib import ExitStack
+from contextlib import ExitStack, nullcontext
 from pathlib import Path
 
 import pytorch_msssim
@@ -37,8 +43,10 @@ from compensation.evaluation.losses import l1, l1_ssim
 from compensation.evaluation.metrics import gaussian_window
 from compensation.methods.compennet import CompenNet
 from compensation.training.conv_grad import nchw_weight_gradients
+from sim.heap import retained_heap
 
-STEPS = ("naive", "surface once", "channels_last", "ssim", "inplace relu", "nchw weight grad", "compile")
+STEPS = ("naive", "surface once", "channels_last", "ssim", "inplace relu", "nchw weight grad",
+         "retained heap", "compile")
 """The measured steps, in order; each adds one speed-up to the one before."""
 
 
@@ -77,20 +85,50 @@ def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: t
     return step
 
 
-def compare(size: int, batch: int, rounds: int, steps: tuple[str, ...]) -> dict[str, float]:
-    """Median samples/second of each step, the steps taking turns for ``rounds`` rounds."""
+def _worker(conn, name: str, size: int, batch: int, threads: int | None) -> None:
+    """In a process of its own: build step ``name``, warm it up, then time one step per request."""
+    if threads:
+        torch.set_num_threads(threads)
     torch.manual_seed(0)
     base = CompenNet(surface=True)
     x, y, s = torch.rand(batch, 3, size, size), torch.rand(batch, 3, size, size), torch.rand(1, 3, size, size)
-    runs = {name: make_step(name, base, x, y, s) for name in steps}
-    for run in runs.values():  # warm-up: allocator, oneDNN primitives, compilation
-        run()
-    seconds = {name: [] for name in steps}
-    for _ in range(rounds):
-        for name, run in runs.items():
+    run = make_step(name, base, x, y, s)
+    kept = STEPS.index(name) >= STEPS.index("retained heap")
+    with retained_heap() if kept else nullcontext():
+        run()  # warm-up: allocator, oneDNN primitives, compilation
+        conn.send(None)
+        while conn.recv():
             start = time.perf_counter()
             run()
-            seconds[name].append(time.perf_counter() - start)
+            conn.send(time.perf_counter() - start)
+
+
+def compare(size: int, batch: int, rounds: int, steps: tuple[str, ...], threads: int | None,
+            pause: float) -> dict[str, float]:
+    """Median samples/second of each step, the steps taking turns for ``rounds`` rounds."""
+    spawn = multiprocessing.get_context("spawn")
+    workers = {}
+    try:
+        for name in steps:
+            here, there = spawn.Pipe()
+            proc = spawn.Process(target=_worker, args=(there, name, size, batch, threads), daemon=True)
+            proc.start()
+            workers[name] = (proc, here)
+        for _, conn in workers.values():
+            conn.recv()
+        seconds = {name: [] for name in steps}
+        for _ in range(rounds):
+            for name, (_, conn) in workers.items():
+                time.sleep(pause)  # the previous step's threads go idle
+                conn.send(True)
+                seconds[name].append(conn.recv())
+        for _, conn in workers.values():
+            conn.send(False)
+    finally:
+        for proc, _ in workers.values():
+            proc.join(timeout=30)
+            if proc.is_alive():
+                proc.terminate()
     return {name: batch / statistics.median(t) for name, t in seconds.items()}
 
 
@@ -100,21 +138,21 @@ def main() -> None:
     ap.add_argument("--batches", default="16,8", help="batch per size")
     ap.add_argument("--rounds", type=int, default=7)
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    ap.add_argument("--pause", type=float, default=0.05, help="seconds of rest before each timed step")
     ap.add_argument("--compile", action="store_true", help="also time torch.compile (slow to build)")
     ap.add_argument("--data", default=None, help="a dataset root with default/ rendered at the quick "
                     "profile (e.g. the demo's out/data): also time the quick profile on it")
     args = ap.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
     steps = STEPS if args.compile else STEPS[:-1]
     sizes = [int(v) for v in args.sizes.split(",")]
     batches = [int(v) for v in args.batches.split(",")]
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, {os.cpu_count()} CPUs, "
+    threads = args.threads or torch.get_num_threads()
+    print(f"torch {torch.__version__}, {threads} threads, {os.cpu_count()} CPUs, "
           f"load average before {os.getloadavg()[0]:.1f}; samples/s (× naive), median of "
           f"{args.rounds} interleaved steps")
     print(f"{'size':>5}{'batch':>6}" + "".join(f"{name:>20}" for name in steps))
     for size, batch in zip(sizes, batches * len(sizes) if len(batches) == 1 else batches):
-        rates = compare(size, batch, args.rounds, steps)
+        rates = compare(size, batch, args.rounds, steps, args.threads, args.pause)
         cells = [f"{rates[n]:.2f} ({rates[n] / rates['naive']:.2f}×)" for n in steps]
         print(f"{size:>5}{batch:>6}" + "".join(f"{c:>20}" for c in cells), flush=True)
     print(f"load average after {os.getloadavg()[0]:.1f}")
