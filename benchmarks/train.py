@@ -21,7 +21,11 @@ Steps (each adds to the one above):
 
 Then, with ``--data``, the `quick` profile's training time and test PSNR/SSIM on the default setup.
 
-    .venv/bin/python benchmarks/train.py [--sizes 128,256] [--batches 16,8] [--rounds 7]
+With ``--runs K`` the whole comparison runs K times in fresh processes, and a last row per size
+gives each step's median over the runs: the naive loop's speed depends on how the kernel serves
+its page faults, which varies from process to process (±15 % between runs at 128²).
+
+    .venv/bin/python benchmarks/train.py [--sizes 128,256] [--batches 16,8] [--rounds 7] [--runs K]
                                          [--threads N] [--pause S] [--compile] [--data out/data]
 """
 from __future__ import annotations
@@ -137,6 +141,7 @@ def main() -> None:
     ap.add_argument("--sizes", default="128,256")
     ap.add_argument("--batches", default="16,8", help="batch per size")
     ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--runs", type=int, default=1, help="repeat the comparison in fresh processes")
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--pause", type=float, default=0.05, help="seconds of rest before each timed step")
     ap.add_argument("--compile", action="store_true", help="also time torch.compile (slow to build)")
@@ -151,10 +156,20 @@ def main() -> None:
           f"load average before {os.getloadavg()[0]:.1f}; samples/s (× naive), median of "
           f"{args.rounds} interleaved steps")
     print(f"{'size':>5}{'batch':>6}" + "".join(f"{name:>20}" for name in steps))
+
+    def row(label: str, rates: dict[str, float], ratios: dict[str, float]) -> None:
+        cells = [f"{rates[n]:.2f} ({ratios[n]:.2f}×)" for n in steps]
+        print(f"{label:>11}" + "".join(f"{c:>20}" for c in cells), flush=True)
+
     for size, batch in zip(sizes, batches * len(sizes) if len(batches) == 1 else batches):
-        rates = compare(size, batch, args.rounds, steps, args.threads, args.pause)
-        cells = [f"{rates[n]:.2f} ({rates[n] / rates['naive']:.2f}×)" for n in steps]
-        print(f"{size:>5}{batch:>6}" + "".join(f"{c:>20}" for c in cells), flush=True)
+        runs = []
+        for _ in range(args.runs):
+            rates = compare(size, batch, args.rounds, steps, args.threads, args.pause)
+            runs.append((rates, {n: rates[n] / rates["naive"] for n in steps}))
+            row(f"{size:>5}{batch:>6}", *runs[-1])
+        if args.runs > 1:
+            row("median", *({n: statistics.median(r[i][n] for r in runs) for n in steps}
+                             for i in (0, 1)))
     print(f"load average after {os.getloadavg()[0]:.1f}")
     if args.data:
         import tempfile
