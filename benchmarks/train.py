@@ -1,8 +1,7 @@
 """Training benchmark: CompenNet samples/second of the naive loop against procam's, each speed-up
 as a step of its own, measured side by side in one run: each step runs in a process of its own
-(so that one step's memory policy and allocations do not touch another's), and the steps take
-turns, one training step each per round with a short pause between, each reporting its median;
-a machine shared with other jobs slows them alike.
+and the steps take turns, one training step each per round, each reporting its median
+(``benchmarks/interleave.py``).
 
 Steps (each adds to the one above):
 
@@ -32,11 +31,9 @@ from __future__ import annotations
 
 import argparse
 import copy
-import multiprocessing
 import os
 import statistics
-import time
-from contextlib import ExitStack, nullcontext
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytorch_msssim
@@ -47,7 +44,7 @@ from compensation.evaluation.losses import l1, l1_ssim
 from compensation.evaluation.metrics import gaussian_window
 from compensation.methods.compennet import CompenNet
 from compensation.training.conv_grad import nchw_weight_gradients
-from sim.heap import retained_heap
+from interleave import interleaved
 
 STEPS = ("naive", "surface once", "channels_last", "ssim", "inplace relu", "nchw weight grad",
          "retained heap", "compile")
@@ -89,50 +86,22 @@ def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: t
     return step
 
 
-def _worker(conn, name: str, size: int, batch: int, threads: int | None) -> None:
-    """In a process of its own: build step ``name``, warm it up, then time one step per request."""
+def build_step(name: str, size: int, batch: int, threads: int | None):
+    """Step ``name`` on seeded random images of ``size``² at ``batch`` (in its worker process)."""
     if threads:
         torch.set_num_threads(threads)
     torch.manual_seed(0)
     base = CompenNet(surface=True)
     x, y, s = torch.rand(batch, 3, size, size), torch.rand(batch, 3, size, size), torch.rand(1, 3, size, size)
-    run = make_step(name, base, x, y, s)
-    kept = STEPS.index(name) >= STEPS.index("retained heap")
-    with retained_heap() if kept else nullcontext():
-        run()  # warm-up: allocator, oneDNN primitives, compilation
-        conn.send(None)
-        while conn.recv():
-            start = time.perf_counter()
-            run()
-            conn.send(time.perf_counter() - start)
+    return make_step(name, base, x, y, s)
 
 
 def compare(size: int, batch: int, rounds: int, steps: tuple[str, ...], threads: int | None,
             pause: float) -> dict[str, float]:
     """Median samples/second of each step, the steps taking turns for ``rounds`` rounds."""
-    spawn = multiprocessing.get_context("spawn")
-    workers = {}
-    try:
-        for name in steps:
-            here, there = spawn.Pipe()
-            proc = spawn.Process(target=_worker, args=(there, name, size, batch, threads), daemon=True)
-            proc.start()
-            workers[name] = (proc, here)
-        for _, conn in workers.values():
-            conn.recv()
-        seconds = {name: [] for name in steps}
-        for _ in range(rounds):
-            for name, (_, conn) in workers.items():
-                time.sleep(pause)  # the previous step's threads go idle
-                conn.send(True)
-                seconds[name].append(conn.recv())
-        for _, conn in workers.values():
-            conn.send(False)
-    finally:
-        for proc, _ in workers.values():
-            proc.join(timeout=30)
-            if proc.is_alive():
-                proc.terminate()
+    kept = STEPS.index("retained heap")
+    seconds = interleaved({name: (build_step, (name, size, batch, threads), STEPS.index(name) >= kept)
+                           for name in steps}, rounds, pause)
     return {name: batch / statistics.median(t) for name, t in seconds.items()}
 
 

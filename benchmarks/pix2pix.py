@@ -1,22 +1,24 @@
-"""pix2pix training step in the default memory layout against channels-last, interleaved in one
-run (one step of each per round, medians reported), at the quick profile's 64² and batch 1.
+"""pix2pix training step: the default memory layout, channels-last, and the default layout with
+freed memory kept in the heap (:mod:`sim.heap`, procam's pix2pix step: the training loop runs
+inside it), each in a process of its own and interleaved (``benchmarks/interleave.py``), at the
+quick profile's 64² and batch 1 by default.
 
 CompenNet's CPU training keeps its network in the channels-last layout (``benchmarks/train.py``);
 this measures whether pix2pix (U-Net generator with BatchNorm at batch 1, PatchGAN discriminator)
-gains from the same::
+gains from the same, and from the retained heap::
 
-    .venv/bin/python benchmarks/pix2pix_layout.py [--size 64] [--rounds 30]
+    .venv/bin/python benchmarks/pix2pix.py [--size 64] [--rounds 30]
 """
 from __future__ import annotations
 
 import argparse
 import statistics
-import time
 
 import torch
 
 from compensation.methods.pix2pix import (BETAS, Pix2Pix, Pix2PixOptions, init_normal, to_signed,
                                           training_step, unet_levels)
+from interleave import interleaved
 
 
 def timed_step(size: int, channels_last: bool):
@@ -41,17 +43,9 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--rounds", type=int, default=30)
     args = ap.parse_args()
-    steps = {"default layout": timed_step(args.size, False),
-             "channels_last": timed_step(args.size, True)}
-    for step in steps.values():  # warm-up
-        step()
-        step()
-    times = {name: [] for name in steps}
-    for _ in range(args.rounds):
-        for name, step in steps.items():
-            t = time.perf_counter()
-            step()
-            times[name].append(time.perf_counter() - t)
+    times = interleaved({"default layout": (timed_step, (args.size, False), False),
+                         "channels_last": (timed_step, (args.size, True), False),
+                         "retained heap": (timed_step, (args.size, False), True)}, args.rounds)
     base = statistics.median(times["default layout"])
     print(f"pix2pix step at {args.size}², batch 1, torch {torch.__version__}, "
           f"{torch.get_num_threads()} threads; median of {args.rounds} interleaved steps")

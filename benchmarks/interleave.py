@@ -1,0 +1,65 @@
+"""Timing steps side by side, each in a process of its own: the steps take turns, one call each per
+round with a short pause before each, so a machine shared with other jobs slows them alike, and no
+step's memory policy or allocations touch another's (glibc's heap state alone moved a CompenNet
+step's speed by 25 % when the steps shared a process)."""
+from __future__ import annotations
+
+import multiprocessing
+import time
+from collections.abc import Callable
+from contextlib import nullcontext
+
+from sim.heap import retained_heap
+
+
+def _serve(conn, build: Callable[..., Callable[[], object]], args: tuple, heap: bool) -> None:
+    """In a process of its own: ``build(*args)`` the step, warm it up, then time one call per request."""
+    run = build(*args)
+    with retained_heap() if heap else nullcontext():
+        run()  # warm-up: allocator, oneDNN primitives, compilation
+        conn.send(None)
+        while conn.recv():
+            start = time.perf_counter()
+            run()
+            conn.send(time.perf_counter() - start)
+
+
+def interleaved(steps: dict[str, tuple[Callable[..., Callable[[], object]], tuple, bool]], rounds: int,
+                pause: float = 0.05) -> dict[str, list[float]]:
+    """Seconds of each call of each step, the steps taking turns for ``rounds`` rounds.
+
+    Parameters
+    ----------
+    steps : dict
+        Name → (``build``, ``args``, ``heap``): ``build(*args)`` returns the step (a callable of no
+        argument), built in the step's own process (so ``build`` must be importable: a module-level
+        function); with ``heap`` the step runs inside :func:`sim.heap.retained_heap`.
+    rounds : int
+        Timed calls of each step.
+    pause : float
+        Seconds of rest before each call (the previous step's threads go idle).
+    """
+    spawn = multiprocessing.get_context("spawn")
+    workers = {}
+    try:
+        for name, (build, args, heap) in steps.items():
+            here, there = spawn.Pipe()
+            proc = spawn.Process(target=_serve, args=(there, build, args, heap), daemon=True)
+            proc.start()
+            workers[name] = (proc, here)
+        for _, conn in workers.values():
+            conn.recv()
+        seconds = {name: [] for name in steps}
+        for _ in range(rounds):
+            for name, (_, conn) in workers.items():
+                time.sleep(pause)
+                conn.send(True)
+                seconds[name].append(conn.recv())
+        for _, conn in workers.values():
+            conn.send(False)
+    finally:
+        for proc, _ in workers.values():
+            proc.join(timeout=30)
+            if proc.is_alive():
+                proc.terminate()
+    return seconds
