@@ -11,12 +11,23 @@ from contextlib import nullcontext
 
 from sim.heap import retained_heap
 
+WARM_UP = 3
+"""Untimed calls of each step first: glibc's heap (its mmap threshold adapts to the sizes freed)
+settles over the first calls; after one call the naive CompenNet loop measured 15-20 % slower
+than after three."""
+
 
 def _serve(conn, build: Callable[..., Callable[[], object]], args: tuple, heap: bool) -> None:
-    """In a process of its own: ``build(*args)`` the step, warm it up, then time one call per request."""
-    run = build(*args)
+    """In a process of its own: ``build(*args)`` the step, warm it up (:data:`WARM_UP` calls),
+    then time one call per request. A failure to build or warm up is sent back as its message."""
     with retained_heap() if heap else nullcontext():
-        run()  # warm-up: allocator, oneDNN primitives, compilation
+        try:
+            run = build(*args)
+            for _ in range(WARM_UP):  # allocator, oneDNN primitives, compilation
+                run()
+        except Exception as exc:  # reported by the driver, which stops
+            conn.send(f"{type(exc).__name__}: {exc}")
+            return
         conn.send(None)
         while conn.recv():
             start = time.perf_counter()
@@ -47,8 +58,9 @@ def interleaved(steps: dict[str, tuple[Callable[..., Callable[[], object]], tupl
             proc = spawn.Process(target=_serve, args=(there, build, args, heap), daemon=True)
             proc.start()
             workers[name] = (proc, here)
-        for _, conn in workers.values():
-            conn.recv()
+        for name, (_, conn) in workers.items():
+            if (failed := conn.recv()) is not None:
+                raise SystemExit(f"benchmark step {name!r} failed: {failed}")
         seconds = {name: [] for name in steps}
         for _ in range(rounds):
             for name, (_, conn) in workers.items():
