@@ -14,6 +14,7 @@ Elsewhere than on glibc (macOS, musl) :func:`retained_heap` changes nothing.
 from __future__ import annotations
 
 import ctypes
+import functools
 import platform
 import threading
 from collections.abc import Iterator
@@ -39,8 +40,10 @@ _lock = threading.Lock()
 _depth = 0
 
 
+@functools.cache
 def _glibc() -> ctypes.CDLL | None:
-    """The process's C library if it is glibc, else None."""
+    """The process's C library if it is glibc, else None (``platform.libc_ver`` reads the Python
+    executable, so the answer is kept)."""
     if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
         return None
     return ctypes.CDLL(None)

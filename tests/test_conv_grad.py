@@ -2,6 +2,8 @@
 own, in both layouts; narrow and transposed ones are left alone; exit restores."""
 from __future__ import annotations
 
+from contextlib import nullcontext
+
 import pytest
 import torch
 
@@ -12,8 +14,9 @@ from compensation.training.conv_grad import nchw_weight_gradients
 def gradients(module: torch.nn.Module, x: torch.Tensor, patched: bool) -> list[torch.Tensor]:
     x = x.detach().clone().requires_grad_()
     module.zero_grad(set_to_none=True)
-    with nchw_weight_gradients(module) if patched else torch.enable_grad():
-        (module(x) * torch.linspace(-1, 1, module(x).numel()).view_as(module(x))).sum().backward()
+    with nchw_weight_gradients(module) if patched else nullcontext():
+        out = module(x)
+        (out * torch.linspace(-1, 1, out.numel()).view_as(out)).sum().backward()
     return [x.grad, module.weight.grad, module.bias.grad]
 
 

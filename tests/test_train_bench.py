@@ -14,18 +14,22 @@ BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 ROOT = BENCHMARKS.parent
 
 
-def run(script: str, *args: str) -> str:
+def run(script: str, *args: str) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_WAIT_POLICY="PASSIVE")
-    proc = subprocess.run([sys.executable, str(BENCHMARKS / script), *args], capture_output=True,
+    return subprocess.run([sys.executable, str(BENCHMARKS / script), *args], capture_output=True,
                           text=True, timeout=600, env=env, cwd=ROOT)
+
+
+def output(script: str, *args: str) -> str:
+    proc = run(script, *args)
     assert proc.returncode == 0, proc.stderr
     return proc.stdout
 
 
 @pytest.mark.slow
 def test_train_benchmark_runs_every_step():
-    out = run("train.py", "--sizes", "16", "--batches", "2", "--rounds", "1", "--runs", "2",
-              "--threads", "1")
+    out = output("train.py", "--sizes", "16", "--batches", "2", "--rounds", "1", "--runs", "2",
+                 "--threads", "1")
     lines = out.splitlines()
     assert lines[1].split()[:3] == ["size", "batch", "naive"]
     assert lines[1].rstrip().endswith("retained heap")
@@ -40,7 +44,7 @@ def test_train_benchmark_runs_every_step():
 
 @pytest.mark.slow
 def test_pix2pix_benchmark_runs_every_variant():
-    out = run("pix2pix.py", "--size", "32", "--rounds", "1")
+    out = output("pix2pix.py", "--size", "32", "--rounds", "1")
     times = dict(re.findall(r"^\s+(default layout|channels_last|retained heap)\s+([\d.]+) ms", out,
                             flags=re.M))
     assert set(times) == {"default layout", "channels_last", "retained heap"}
@@ -49,10 +53,7 @@ def test_pix2pix_benchmark_runs_every_variant():
 
 @pytest.mark.slow
 def test_a_failing_step_stops_the_benchmark_with_its_message():
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.run([sys.executable, str(BENCHMARKS / "pix2pix.py"), "--size", "16",
-                           "--rounds", "1"], capture_output=True, text=True, timeout=600, env=env,
-                          cwd=ROOT)
+    proc = run("pix2pix.py", "--size", "16", "--rounds", "1")
     assert proc.returncode == 1
     assert "benchmark step 'default layout' failed: ProcamError: 16x16 pixels" in proc.stderr
     assert "Traceback" not in proc.stderr
