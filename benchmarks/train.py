@@ -12,8 +12,10 @@ Steps (each adds to the one above):
 * ``channels_last``: network and images in the channels-last memory layout;
 * ``ssim``: procam's SSIM (per-channel 1-D Gaussian passes in the channels-last layout);
 * ``inplace relu``: in-place ReLUs;
-* ``nchw weight grad``: the wide convolutions' weight gradients taken in the default layout
-  (:mod:`compensation.training.conv_grad`);
+* ``conv backward``: the convolutions' backward replacements that measured faster on this CPU
+  (:func:`~compensation.training.conv_grad.faster_backward`: the transposed convolutions' backward
+  as 1×1 convolutions of the space-to-depth output gradient; on AVX2 CPUs also the wide
+  convolutions' weight gradients in the default layout; the first line says which);
 * ``retained heap``: freed memory kept in the heap for the next step (:mod:`sim.heap`) — procam's
   CPU training step (:func:`~compensation.training.loop.fit_network`);
 * ``compile`` (``--compile``): ``torch.compile`` of the network on top.
@@ -43,10 +45,10 @@ import torch.nn.functional as F
 from compensation.evaluation.losses import l1, l1_ssim
 from compensation.evaluation.metrics import gaussian_window
 from compensation.methods.compennet import CompenNet
-from compensation.training.conv_grad import nchw_weight_gradients
+from compensation.training.conv_grad import faster_backward, nchw_weight_gradients_pay
 from interleave import interleaved
 
-STEPS = ("naive", "surface once", "channels_last", "ssim", "inplace relu", "nchw weight grad",
+STEPS = ("naive", "surface once", "channels_last", "ssim", "inplace relu", "conv backward",
          "retained heap", "compile")
 """The measured steps, in order; each adds one speed-up to the one before."""
 
@@ -72,8 +74,9 @@ def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: t
         model = model.to(memory_format=layout)
         x, y, s = (t.contiguous(memory_format=layout) for t in (x, y, s))
     loss_fn = l1_ssim if level >= STEPS.index("ssim") else previous_l1_ssim
-    if level >= STEPS.index("nchw weight grad"):
-        ExitStack().enter_context(nchw_weight_gradients(model))  # for the model's lifetime
+    patches = ExitStack()
+    if level >= STEPS.index("conv backward"):
+        patches.enter_context(faster_backward(model))
     forward = torch.compile(model) if name == "compile" else model
     opt = torch.optim.Adam(model.parameters(), lr=1e-3, weight_decay=1e-4)
 
@@ -83,6 +86,7 @@ def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: t
         loss.backward()
         opt.step()
         return loss.item()
+    step.model, step.patches = model, patches  # the layers stay changed while the step lives
     return step
 
 
@@ -123,7 +127,9 @@ def main() -> None:
     threads = args.threads or torch.get_num_threads()
     print(f"torch {torch.__version__}, {threads} threads, {os.cpu_count()} CPUs, "
           f"load average before {os.getloadavg()[0]:.1f}; samples/s (× naive), median of "
-          f"{args.rounds} interleaved steps")
+          f"{args.rounds} interleaved steps; conv backward: space-to-depth transposed gradients, "
+          f"NCHW weight gradients {'on' if nchw_weight_gradients_pay() else 'off'} "
+          f"({torch.backends.cpu.get_cpu_capability()})")
     print(f"{'size':>5}{'batch':>6}" + "".join(f"{name:>20}" for name in steps))
 
     def row(label: str, rates: dict[str, float], ratios: dict[str, float]) -> None:

@@ -1,5 +1,6 @@
-"""compensation.training.conv_grad: the NCHW weight gradient of wide convolutions equals autograd's
-own, in both layouts; narrow and transposed ones are left alone; exit restores."""
+"""compensation.training.conv_grad: the NCHW weight gradient of wide convolutions and the
+space-to-depth backward of block transposed convolutions equal autograd's own, in both layouts;
+other layers are left alone; exit restores."""
 from __future__ import annotations
 
 from contextlib import nullcontext
@@ -8,16 +9,34 @@ import pytest
 import torch
 
 from compensation.methods.compennet import CompenNet
-from compensation.training.conv_grad import nchw_weight_gradients
+from compensation.training.conv_grad import (faster_backward, nchw_weight_gradients,
+                                              space_to_depth_gradients)
 
 
-def gradients(module: torch.nn.Module, x: torch.Tensor, patched: bool) -> list[torch.Tensor]:
+def gradients(module: torch.nn.Module, x: torch.Tensor, patch) -> list[torch.Tensor]:
     x = x.detach().clone().requires_grad_()
     module.zero_grad(set_to_none=True)
-    with nchw_weight_gradients(module) if patched else nullcontext():
+    with patch(module) if patch else nullcontext():
         out = module(x)
         (out * torch.linspace(-1, 1, out.numel()).view_as(out)).sum().backward()
     return [x.grad, module.weight.grad, module.bias.grad]
+
+
+def check_against_float64(module: torch.nn.Module, x: torch.Tensor, patch) -> None:
+    """``patch``'s gradients in float32 are as close to float64 autograd as autograd's own."""
+    reference = [g.clone() for g in gradients(module.double(), x.double(), patch=None)]
+    module.float()
+    with patch(module) as changed:
+        assert changed == 1
+        out = module(x)
+    assert torch.equal(out, module(x))  # the forward is the layer's own
+    plain = gradients(module, x, patch=None)
+    for got, own, want in zip(gradients(module, x, patch), plain, reference):
+        assert got.shape == want.shape
+        # float32 against float64: within a few times autograd's own float32 rounding
+        scale = want.abs().max().item()
+        own_error = (own.double() - want).abs().max().item()
+        assert (got.double() - want).abs().max().item() <= 4 * own_error + 1e-6 * scale
 
 
 @pytest.mark.parametrize("layout", [torch.contiguous_format, torch.channels_last])
@@ -26,30 +45,66 @@ def gradients(module: torch.nn.Module, x: torch.Tensor, patched: bool) -> list[t
     lambda: torch.nn.Conv2d(64, 16, 3, 2, 1),
     lambda: torch.nn.Conv2d(96, 8, 1),
 ], ids=["3x3", "3x3 stride 2", "1x1"])
-def test_gradients_equal_autograds(make, layout):
+def test_nchw_weight_gradients_equal_autograds(make, layout):
     torch.manual_seed(0)
     module = make().to(memory_format=layout)
     x = torch.rand(3, module.in_channels, 10, 14).contiguous(memory_format=layout)
-    reference = [g.clone() for g in gradients(module.double(), x.double(), patched=False)]
-    module.float()
-    with nchw_weight_gradients(module) as changed:
-        assert changed == 1
-        out = module(x)
-    assert out.shape == module(x).shape
-    plain = gradients(module, x, patched=False)
-    for got, own, want in zip(gradients(module, x, patched=True), plain, reference):
-        # float32 against float64: within a few times autograd's own float32 rounding
-        scale = want.abs().max().item()
-        own_error = (own.double() - want).abs().max().item()
-        assert (got.double() - want).abs().max().item() <= 4 * own_error + 1e-6 * scale
+    check_against_float64(module, x, nchw_weight_gradients)
 
 
-def test_narrow_layers_are_left_alone_and_exit_restores():
+@pytest.mark.parametrize("layout", [torch.contiguous_format, torch.channels_last])
+@pytest.mark.parametrize("make", [
+    lambda: torch.nn.ConvTranspose2d(16, 8, 2, 2),
+    lambda: torch.nn.ConvTranspose2d(6, 5, (2, 3), (2, 3)),
+    lambda: torch.nn.ConvTranspose2d(4, 3, 1, 1),
+], ids=["2x2", "2x3", "1x1"])
+def test_space_to_depth_gradients_equal_autograds(make, layout):
+    torch.manual_seed(0)
+    module = make().to(memory_format=layout)
+    x = torch.rand(3, module.in_channels, 5, 7).contiguous(memory_format=layout)
+    check_against_float64(module, x, space_to_depth_gradients)
+
+
+def test_space_to_depth_without_bias_or_input_gradient():
+    torch.manual_seed(1)
+    module = torch.nn.ConvTranspose2d(8, 4, 2, 2, bias=False)
+    x = torch.rand(2, 8, 3, 4)  # no gradient wanted for the input
+    module(x).square().sum().backward()
+    want = module.weight.grad.clone()
+    module.weight.grad = None
+    with space_to_depth_gradients(module):
+        module(x).square().sum().backward()
+    assert torch.allclose(module.weight.grad, want, rtol=1e-5, atol=1e-6)
+
+
+def test_explicit_output_size_runs_the_layers_own():
+    module = torch.nn.ConvTranspose2d(4, 2, 2, 2)
+    x = torch.rand(1, 4, 3, 3)
+    with space_to_depth_gradients(module):
+        assert module(x, output_size=[7, 7]).shape == (1, 2, 7, 7)  # output padding 1
+        assert module(x).shape == (1, 2, 6, 6)
+
+
+def test_other_layers_are_left_alone_and_exit_restores():
     model = CompenNet(surface=True)
-    with nchw_weight_gradients(model) as changed:
-        wide = [n for n, m in model.named_modules() if "forward" in vars(m)]
-    # Conv2d with at least 64 input channels: conv3-5, conv3_s, conv4_s, skipConv3
-    assert changed == 6
-    assert sorted(wide) == sorted(["conv3", "conv4", "conv5", "conv3_s", "conv4_s", "skipConv3"])
-    assert not [n for n, m in model.named_modules() if "forward" in vars(m)]
+    model.extra = torch.nn.ModuleList([torch.nn.ConvTranspose2d(4, 4, 3, 2),  # kernel != stride
+                                       torch.nn.ConvTranspose2d(4, 4, 2, 2, padding=1),
+                                       torch.nn.ConvTranspose2d(4, 4, 2, 2, groups=2)])
+    patched = lambda: sorted(n for n, m in model.named_modules() if "forward" in vars(m))
+    with nchw_weight_gradients(model) as wide, space_to_depth_gradients(model) as blocks:
+        # Conv2d with at least 64 input channels: conv3-5, conv3_s, conv4_s, skipConv3
+        assert (wide, blocks) == (6, 2)
+        assert patched() == sorted(["conv3", "conv4", "conv5", "conv3_s", "conv4_s", "skipConv3",
+                                    "transConv1", "transConv2"])
+    assert not patched()
 
+
+@pytest.mark.parametrize("capability, wide", [("AVX2", 6), ("AVX512", 0), ("DEFAULT", 0)])
+def test_faster_backward_takes_nchw_weight_gradients_on_avx2_only(monkeypatch, capability, wide):
+    monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: capability)
+    model = CompenNet(surface=True)
+    with faster_backward(model) as changed:
+        assert changed == (wide, 2)
+        assert ("forward" in vars(model.conv4)) == bool(wide)
+        assert "forward" in vars(model.transConv2)
+    assert not [n for n, m in model.named_modules() if "forward" in vars(m)]

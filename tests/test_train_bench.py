@@ -2,6 +2,7 @@
 every step runs in its own process and gets a positive rate, the naive loop is the unit."""
 from __future__ import annotations
 
+import gc
 import os
 import re
 import subprocess
@@ -9,6 +10,9 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
+
+from compensation.methods.compennet import CompenNet
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 ROOT = BENCHMARKS.parent
@@ -40,6 +44,20 @@ def test_train_benchmark_runs_every_step():
         assert len(cells) == 7  # naive … retained heap
         assert all(float(rate) > 0 for rate, _ in cells)
         assert cells[0][1] == "1.00"
+
+
+def test_procams_step_keeps_its_layers_changed(monkeypatch):
+    """The benchmark's last step is the training loop's: the backward replacements stay in force
+    for the step's lifetime (a context left to the garbage collector would undo them)."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    import train
+
+    x, y, s = torch.rand(2, 3, 8, 8), torch.rand(2, 3, 8, 8), torch.rand(1, 3, 8, 8)
+    step = train.make_step("retained heap", CompenNet(), x, y, s)
+    gc.collect()
+    assert "forward" in vars(step.model.transConv2)
+    assert step() > 0
+    assert "forward" not in vars(train.make_step("inplace relu", CompenNet(), x, y, s).model.transConv2)
 
 
 @pytest.mark.slow

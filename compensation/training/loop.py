@@ -27,7 +27,7 @@ import torch
 from tqdm import tqdm
 
 from compensation.evaluation.losses import get_loss
-from compensation.training.conv_grad import nchw_weight_gradients
+from compensation.training.conv_grad import faster_backward
 from sim.errors import ProcamError
 from sim.heap import retained_heap
 from sim.io import atomic_write
@@ -352,8 +352,10 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     The network and the images are kept in the channels-last memory layout while training
     (oneDNN's native layout on the CPU, ``benchmarks/train.py`` measures its effect; the layout of
     CUDA's tensor-core convolutions); the values are those of the default layout to float
-    rounding, and the model is returned in the default layout. On the CPU the wide convolutions
-    take their weight gradient in the default layout instead (:mod:`compensation.training.conv_grad`).
+    rounding, and the model is returned in the default layout. On the CPU the transposed
+    convolutions take their backward pass as 1×1 convolutions, and on AVX2 CPUs the wide
+    convolutions their weight gradient in the default layout
+    (:func:`compensation.training.conv_grad.faster_backward`).
 
     Returns
     -------
@@ -401,7 +403,7 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
         stateful["crops"] = crops
     model.train()
     try:
-        with nchw_weight_gradients(model) if device.type == "cpu" else nullcontext():
+        with faster_backward(model) if device.type == "cpu" else nullcontext():
             result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
                                 ("loss", "lr"), f"train {cfg.method} on {data.name}", progress,
                                 stateful, checkpoint, sampler=opt.sampler)
