@@ -14,7 +14,7 @@ Steps (each adds to the one above):
 * ``inplace relu``: in-place ReLUs;
 * ``conv backward``: the convolutions' backward replacements that measured faster on this CPU
   (:func:`~compensation.training.conv_grad.faster_backward`: the transposed convolutions' backward
-  as 1×1 convolutions of the space-to-depth output gradient; on AVX2 CPUs also the wide
+  as the strided convolutions they transpose; on AVX2 CPUs also the wide
   convolutions' weight gradients in the default layout; the first line says which);
 * ``retained heap``: freed memory kept in the heap for the next step (:mod:`sim.heap`) — procam's
   CPU training step (:func:`~compensation.training.loop.fit_network`);
@@ -127,7 +127,7 @@ def main() -> None:
     threads = args.threads or torch.get_num_threads()
     print(f"torch {torch.__version__}, {threads} threads, {os.cpu_count()} CPUs, "
           f"load average before {os.getloadavg()[0]:.1f}; samples/s (× naive), median of "
-          f"{args.rounds} interleaved steps; conv backward: space-to-depth transposed gradients, "
+          f"{args.rounds} interleaved steps; conv backward: transposed as strided, "
           f"NCHW weight gradients {'on' if nchw_weight_gradients_pay() else 'off'} "
           f"({torch.backends.cpu.get_cpu_capability()})")
     print(f"{'size':>5}{'batch':>6}" + "".join(f"{name:>20}" for name in steps))

@@ -1,5 +1,5 @@
 """compensation.training.conv_grad: the NCHW weight gradient of wide convolutions and the
-space-to-depth backward of block transposed convolutions equal autograd's own, in both layouts;
+transposed convolutions' backward as strided convolutions equal autograd's own, in both layouts;
 other layers are left alone; exit restores."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import torch
 
 from compensation.methods.compennet import CompenNet
 from compensation.training.conv_grad import (faster_backward, nchw_weight_gradients,
-                                              space_to_depth_gradients)
+                                              conv_transpose_gradients)
 
 
 def gradients(module: torch.nn.Module, x: torch.Tensor, patch) -> list[torch.Tensor]:
@@ -56,23 +56,36 @@ def test_nchw_weight_gradients_equal_autograds(make, layout):
 @pytest.mark.parametrize("make", [
     lambda: torch.nn.ConvTranspose2d(16, 8, 2, 2),
     lambda: torch.nn.ConvTranspose2d(6, 5, (2, 3), (2, 3)),
-    lambda: torch.nn.ConvTranspose2d(4, 3, 1, 1),
-], ids=["2x2", "2x3", "1x1"])
-def test_space_to_depth_gradients_equal_autograds(make, layout):
+    lambda: torch.nn.ConvTranspose2d(8, 4, 4, 2, 1),
+    lambda: torch.nn.ConvTranspose2d(4, 6, 3, 2, 1, output_padding=1),
+    lambda: torch.nn.ConvTranspose2d(4, 3, 3, 1, 2, dilation=2),
+], ids=["2x2 stride 2", "2x3 stride 2x3", "4x4 stride 2 pad 1", "output padding", "dilation 2"])
+def test_conv_transpose_gradients_equal_autograds(make, layout):
     torch.manual_seed(0)
     module = make().to(memory_format=layout)
     x = torch.rand(3, module.in_channels, 5, 7).contiguous(memory_format=layout)
-    check_against_float64(module, x, space_to_depth_gradients)
+    check_against_float64(module, x, conv_transpose_gradients)
 
 
-def test_space_to_depth_without_bias_or_input_gradient():
+@pytest.mark.parametrize("layout", [torch.contiguous_format, torch.channels_last])
+def test_conv_transpose_gradients_are_onednns_own_bit_for_bit(layout):
+    """Input and weight gradient: the same oneDNN arithmetic as torch's own backward."""
+    torch.manual_seed(2)
+    module = torch.nn.ConvTranspose2d(64, 32, 2, 2).to(memory_format=layout)
+    x = torch.rand(4, 64, 16, 16).contiguous(memory_format=layout)
+    plain = gradients(module, x, patch=None)
+    got = gradients(module, x, conv_transpose_gradients)
+    assert torch.equal(got[0], plain[0]) and torch.equal(got[1], plain[1])
+
+
+def test_conv_transpose_without_bias_or_input_gradient():
     torch.manual_seed(1)
     module = torch.nn.ConvTranspose2d(8, 4, 2, 2, bias=False)
     x = torch.rand(2, 8, 3, 4)  # no gradient wanted for the input
     module(x).square().sum().backward()
     want = module.weight.grad.clone()
     module.weight.grad = None
-    with space_to_depth_gradients(module):
+    with conv_transpose_gradients(module):
         module(x).square().sum().backward()
     assert torch.allclose(module.weight.grad, want, rtol=1e-5, atol=1e-6)
 
@@ -80,20 +93,18 @@ def test_space_to_depth_without_bias_or_input_gradient():
 def test_explicit_output_size_runs_the_layers_own():
     module = torch.nn.ConvTranspose2d(4, 2, 2, 2)
     x = torch.rand(1, 4, 3, 3)
-    with space_to_depth_gradients(module):
+    with conv_transpose_gradients(module):
         assert module(x, output_size=[7, 7]).shape == (1, 2, 7, 7)  # output padding 1
         assert module(x).shape == (1, 2, 6, 6)
 
 
 def test_other_layers_are_left_alone_and_exit_restores():
     model = CompenNet(surface=True)
-    model.extra = torch.nn.ModuleList([torch.nn.ConvTranspose2d(4, 4, 3, 2),  # kernel != stride
-                                       torch.nn.ConvTranspose2d(4, 4, 2, 2, padding=1),
-                                       torch.nn.ConvTranspose2d(4, 4, 2, 2, groups=2)])
+    model.extra = torch.nn.ConvTranspose2d(4, 4, 2, 2, groups=2)
     patched = lambda: sorted(n for n, m in model.named_modules() if "forward" in vars(m))
-    with nchw_weight_gradients(model) as wide, space_to_depth_gradients(model) as blocks:
+    with nchw_weight_gradients(model) as wide, conv_transpose_gradients(model) as transposed:
         # Conv2d with at least 64 input channels: conv3-5, conv3_s, conv4_s, skipConv3
-        assert (wide, blocks) == (6, 2)
+        assert (wide, transposed) == (6, 2)
         assert patched() == sorted(["conv3", "conv4", "conv5", "conv3_s", "conv4_s", "skipConv3",
                                     "transConv1", "transConv2"])
     assert not patched()
