@@ -353,8 +353,8 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     (oneDNN's native layout on the CPU, ``benchmarks/train.py`` measures its effect; the layout of
     CUDA's tensor-core convolutions); the values are those of the default layout to float
     rounding, and the model is returned in the default layout. On the CPU the transposed
-    convolutions take their backward pass as the strided convolutions they transpose, and on AVX2 CPUs the wide
-    convolutions their weight gradient in the default layout
+    convolutions take their backward pass as the strided convolutions they transpose, and on
+    AVX2 CPUs the wide convolutions their weight gradient in the default layout
     (:func:`compensation.training.conv_grad.faster_backward`).
 
     Returns
