@@ -33,8 +33,10 @@ takes the NCHW weight gradients (measured faster on AVX2, slower on AVX-512; els
 measured, so left as torch computes them)."""
 
 MIN_CHANNELS = 64
-"""Convolutions with at least this many input channels get the NCHW weight gradient: on narrower
-ones the two layout copies cost more than they save (``benchmarks/train.py``)."""
+"""Convolutions with at least this many input channels get the NCHW weight gradient (CompenNet's
+conv3-conv5, conv3_s, conv4_s, skipConv3): the layers where the AVX2 profile found the
+channels-last weight gradient slow; on narrower ones the two layout copies weigh more
+(``benchmarks/results/train/README.md``)."""
 
 _backward = torch.ops.aten.convolution_backward
 
