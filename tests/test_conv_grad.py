@@ -90,6 +90,18 @@ def test_conv_transpose_without_bias_or_input_gradient():
     assert torch.allclose(module.weight.grad, want, rtol=1e-5, atol=1e-6)
 
 
+def test_unbatched_images_run_the_layers_own():
+    torch.manual_seed(3)
+    for module in (torch.nn.Conv2d(64, 4, 3, padding=1), torch.nn.ConvTranspose2d(4, 2, 2, 2)):
+        x = torch.rand(module.in_channels, 6, 6, requires_grad=True)
+        module(x).square().sum().backward()
+        want = x.grad.clone(), module.weight.grad.clone()
+        x.grad = module.weight.grad = module.bias.grad = None
+        with nchw_weight_gradients(module), conv_transpose_gradients(module):
+            module(x).square().sum().backward()
+        assert torch.allclose(x.grad, want[0]) and torch.allclose(module.weight.grad, want[1])
+
+
 def test_explicit_output_size_runs_the_layers_own():
     module = torch.nn.ConvTranspose2d(4, 2, 2, 2)
     x = torch.rand(1, 4, 3, 3)

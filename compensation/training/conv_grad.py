@@ -22,7 +22,7 @@ CPU it runs on; ``benchmarks/train.py`` times it.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from contextlib import ExitStack, contextmanager
+from contextlib import AbstractContextManager, ExitStack, contextmanager
 
 import torch
 import torch.nn.functional as F
@@ -103,13 +103,15 @@ def _plain_transpose(module: torch.nn.Module) -> bool:
 
 
 def _conv_forward(self: torch.nn.Conv2d, x: torch.Tensor) -> torch.Tensor:
+    if x.dim() != 4:  # an unbatched image: the layer's own code
+        return type(self).forward(self, x)
     return _Conv2d.apply(x, self.weight, self.bias, list(self.stride), list(self.padding))
 
 
 def _transpose_forward(self: torch.nn.ConvTranspose2d, x: torch.Tensor,
                        output_size: list[int] | None = None) -> torch.Tensor:
-    if output_size is not None:  # the size decides the output padding: the layer's own code
-        return type(self).forward(self, x, output_size)
+    if output_size is not None or x.dim() != 4:  # output padding from the size, or an unbatched
+        return type(self).forward(self, x, output_size)  # image: the layer's own code
     return _ConvTranspose2d.apply(x, self.weight, self.bias, list(self.stride), list(self.padding),
                                   list(self.output_padding), list(self.dilation))
 
@@ -128,7 +130,7 @@ def _patched(model: torch.nn.Module, applies: Callable[[torch.nn.Module], bool],
             del m.forward
 
 
-def nchw_weight_gradients(model: torch.nn.Module):
+def nchw_weight_gradients(model: torch.nn.Module) -> AbstractContextManager[int]:
     """While inside, the wide plain convolutions of ``model`` take their weight gradient in NCHW.
 
     Parameters
@@ -158,7 +160,7 @@ def nchw_weight_gradients(model: torch.nn.Module):
     return _patched(model, _wide_conv, _conv_forward)
 
 
-def conv_transpose_gradients(model: torch.nn.Module):
+def conv_transpose_gradients(model: torch.nn.Module) -> AbstractContextManager[int]:
     """While inside, ``model``'s transposed convolutions take their backward pass as the strided
     convolution that they transpose.
 
@@ -166,8 +168,8 @@ def conv_transpose_gradients(model: torch.nn.Module):
     ----------
     model : torch.nn.Module
         Its ``ConvTranspose2d`` modules with one group are changed (their instance ``forward``),
-        and restored on exit however the block ends. A call with an explicit ``output_size`` runs
-        the layer's own forward and backward.
+        and restored on exit however the block ends. A call with an explicit ``output_size``,
+        or on an unbatched (C, H, W) image, runs the layer's own forward and backward.
 
     Returns
     -------
