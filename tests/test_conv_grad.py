@@ -29,6 +29,7 @@ def check_against_float64(module: torch.nn.Module, x: torch.Tensor, patch) -> No
     with patch(module) as changed:
         assert changed == 1
         out = module(x)
+    assert type(out.grad_fn).__name__ in ("_Conv2dBackward", "_ConvTranspose2dBackward")
     assert torch.equal(out, module(x))  # the forward is the layer's own
     plain = gradients(module, x, patch=None)
     for got, own, want in zip(gradients(module, x, patch), plain, reference):
@@ -59,7 +60,9 @@ def test_nchw_weight_gradients_equal_autograds(make, layout):
     lambda: torch.nn.ConvTranspose2d(8, 4, 4, 2, 1),
     lambda: torch.nn.ConvTranspose2d(4, 6, 3, 2, 1, output_padding=1),
     lambda: torch.nn.ConvTranspose2d(4, 3, 3, 1, 2, dilation=2),
-], ids=["2x2 stride 2", "2x3 stride 2x3", "4x4 stride 2 pad 1", "output padding", "dilation 2"])
+    lambda: torch.nn.ConvTranspose2d(3, 2, (1, 2), (3, 1), (0, 3), output_padding=(2, 0)),
+], ids=["2x2 stride 2", "2x3 stride 2x3", "4x4 stride 2 pad 1", "output padding", "dilation 2",
+        "stride > kernel, padding > kernel"])
 def test_conv_transpose_gradients_equal_autograds(make, layout):
     torch.manual_seed(0)
     module = make().to(memory_format=layout)
@@ -108,6 +111,28 @@ def test_explicit_output_size_runs_the_layers_own():
     with conv_transpose_gradients(module):
         assert module(x, output_size=[7, 7]).shape == (1, 2, 7, 7)  # output padding 1
         assert module(x).shape == (1, 2, 6, 6)
+
+
+def test_output_padding_from_dilation_is_left_alone():
+    """An output padding at or above the stride (allowed with dilation) keeps the layer's own
+    backward: the strided convolution's output would have more rows than the input."""
+    module = torch.nn.ConvTranspose2d(1, 1, 3, stride=1, dilation=2, output_padding=1)
+    x = torch.rand(1, 1, 4, 4, requires_grad=True)
+    with conv_transpose_gradients(module) as changed:
+        module(x).sum().backward()
+    assert changed == 0 and x.grad.shape == x.shape
+
+
+def test_nested_blocks_and_own_forwards_are_kept():
+    own = torch.nn.ConvTranspose2d(2, 2, 2, 2)
+    own.forward = lambda x: x  # an instance forward of the caller's
+    model = torch.nn.Sequential(torch.nn.ConvTranspose2d(2, 2, 2, 2), own)
+    with conv_transpose_gradients(model) as outer:
+        with conv_transpose_gradients(model) as inner:
+            assert (outer, inner) == (1, 0)
+        assert "forward" in vars(model[0])  # the inner exit left the outer block's change
+    assert "forward" not in vars(model[0]) and vars(own)["forward"] is not None
+    assert torch.equal(own(torch.ones(1)), torch.ones(1))
 
 
 def test_other_layers_are_left_alone_and_exit_restores():

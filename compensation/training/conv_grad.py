@@ -98,8 +98,10 @@ def _wide_conv(module: torch.nn.Module) -> bool:
 
 
 def _plain_transpose(module: torch.nn.Module) -> bool:
-    """A ConvTranspose2d with one group."""
-    return type(module) is torch.nn.ConvTranspose2d and module.groups == 1
+    """A ConvTranspose2d with one group and an output padding below its stride (a larger one,
+    allowed with dilation, adds rows that no strided convolution of the output maps back)."""
+    return (type(module) is torch.nn.ConvTranspose2d and module.groups == 1
+            and all(p < s for p, s in zip(module.output_padding, module.stride)))
 
 
 def _conv_forward(self: torch.nn.Conv2d, x: torch.Tensor) -> torch.Tensor:
@@ -119,8 +121,9 @@ def _transpose_forward(self: torch.nn.ConvTranspose2d, x: torch.Tensor,
 @contextmanager
 def _patched(model: torch.nn.Module, applies: Callable[[torch.nn.Module], bool],
              forward: Callable) -> Iterator[int]:
-    """While inside, the modules of ``model`` that ``applies`` accepts run ``forward``."""
-    changed = [m for m in model.modules() if applies(m)]
+    """While inside, the modules of ``model`` that ``applies`` accepts run ``forward``; a module
+    that already has a ``forward`` of its own (say, from an enclosing block) is left as it is."""
+    changed = [m for m in model.modules() if applies(m) and "forward" not in vars(m)]
     for m in changed:
         m.forward = forward.__get__(m)
     try:
@@ -137,7 +140,8 @@ def nchw_weight_gradients(model: torch.nn.Module) -> AbstractContextManager[int]
     ----------
     model : torch.nn.Module
         Its ``Conv2d`` modules with at least :data:`MIN_CHANNELS` input channels are changed
-        (their instance ``forward``), and restored on exit however the block ends.
+        (their instance ``forward``), and restored on exit however the block ends; modules that
+        already have an instance ``forward`` are left alone.
 
     Returns
     -------
@@ -167,9 +171,10 @@ def conv_transpose_gradients(model: torch.nn.Module) -> AbstractContextManager[i
     Parameters
     ----------
     model : torch.nn.Module
-        Its ``ConvTranspose2d`` modules with one group are changed (their instance ``forward``),
-        and restored on exit however the block ends. A call with an explicit ``output_size``,
-        or on an unbatched (C, H, W) image, runs the layer's own forward and backward.
+        Its ``ConvTranspose2d`` modules with one group and an output padding below the stride
+        are changed (their instance ``forward``), and restored on exit however the block ends.
+        A call with an explicit ``output_size``, or on an unbatched (C, H, W) image, runs the
+        layer's own forward and backward.
 
     Returns
     -------
@@ -199,9 +204,10 @@ def nchw_weight_gradients_pay() -> bool:
 
 @contextmanager
 def faster_backward(model: torch.nn.Module) -> Iterator[tuple[int, int]]:
-    """While inside, ``model`` takes the backward replacements that measured faster on this CPU:
-    :func:`conv_transpose_gradients` always, :func:`nchw_weight_gradients` where the CPU's
-    capability is in :data:`NCHW_WEIGHT_GRADIENT_CPUS`.
+    """While inside, ``model`` takes the backward replacements that measured faster on this CPU
+    in the channels-last layout that training uses: :func:`conv_transpose_gradients` always,
+    :func:`nchw_weight_gradients` where the CPU's capability is in
+    :data:`NCHW_WEIGHT_GRADIENT_CPUS`.
 
     Yields
     ------
@@ -211,11 +217,12 @@ def faster_backward(model: torch.nn.Module) -> Iterator[tuple[int, int]]:
     Examples
     --------
     >>> from compensation.methods.compennet import CompenNet
-    >>> with faster_backward(CompenNet()) as (wide, transposed):
-    ...     transposed, wide == (6 if nchw_weight_gradients_pay() else 0)
-    (2, True)
+    >>> with faster_backward(CompenNet()) as changed:
+    ...     changed == (6 if nchw_weight_gradients_pay() else 0, 2)
+    True
     """
     with ExitStack() as stack:
         transposed = stack.enter_context(conv_transpose_gradients(model))
-        wide = stack.enter_context(nchw_weight_gradients(model)) if nchw_weight_gradients_pay() else 0
+        pays = nchw_weight_gradients_pay()
+        wide = stack.enter_context(nchw_weight_gradients(model)) if pays else 0
         yield wide, transposed
