@@ -40,34 +40,30 @@ def check_against_float64(module: torch.nn.Module, x: torch.Tensor, patch) -> No
         assert (got.double() - want).abs().max().item() <= 4 * own_error + 1e-6 * scale
 
 
+CASES = [  # (layer, replacement), ids below
+    (lambda: torch.nn.Conv2d(64, 16, 3, 1, 1), nchw_weight_gradients),
+    (lambda: torch.nn.Conv2d(64, 16, 3, 2, 1), nchw_weight_gradients),
+    (lambda: torch.nn.Conv2d(96, 8, 1), nchw_weight_gradients),
+    (lambda: torch.nn.ConvTranspose2d(16, 8, 2, 2), conv_transpose_gradients),
+    (lambda: torch.nn.ConvTranspose2d(6, 5, (2, 3), (2, 3)), conv_transpose_gradients),
+    (lambda: torch.nn.ConvTranspose2d(8, 4, 4, 2, 1), conv_transpose_gradients),
+    (lambda: torch.nn.ConvTranspose2d(4, 6, 3, 2, 1, output_padding=1), conv_transpose_gradients),
+    (lambda: torch.nn.ConvTranspose2d(4, 3, 3, 1, 2, dilation=2), conv_transpose_gradients),
+    (lambda: torch.nn.ConvTranspose2d(3, 2, (1, 2), (3, 1), (0, 3), output_padding=(2, 0)),
+     conv_transpose_gradients),
+]
+IDS = ["conv 3x3", "conv 3x3 stride 2", "conv 1x1", "transposed 2x2 stride 2",
+       "transposed 2x3 stride 2x3", "transposed 4x4 stride 2 pad 1", "transposed output padding",
+       "transposed dilation 2", "transposed stride > kernel, padding > kernel"]
+
+
 @pytest.mark.parametrize("layout", [torch.contiguous_format, torch.channels_last])
-@pytest.mark.parametrize("make", [
-    lambda: torch.nn.Conv2d(64, 16, 3, 1, 1),
-    lambda: torch.nn.Conv2d(64, 16, 3, 2, 1),
-    lambda: torch.nn.Conv2d(96, 8, 1),
-], ids=["3x3", "3x3 stride 2", "1x1"])
-def test_nchw_weight_gradients_equal_autograds(make, layout):
+@pytest.mark.parametrize("make, patch", CASES, ids=IDS)
+def test_gradients_equal_autograds(make, patch, layout):
     torch.manual_seed(0)
     module = make().to(memory_format=layout)
     x = torch.rand(3, module.in_channels, 10, 14).contiguous(memory_format=layout)
-    check_against_float64(module, x, nchw_weight_gradients)
-
-
-@pytest.mark.parametrize("layout", [torch.contiguous_format, torch.channels_last])
-@pytest.mark.parametrize("make", [
-    lambda: torch.nn.ConvTranspose2d(16, 8, 2, 2),
-    lambda: torch.nn.ConvTranspose2d(6, 5, (2, 3), (2, 3)),
-    lambda: torch.nn.ConvTranspose2d(8, 4, 4, 2, 1),
-    lambda: torch.nn.ConvTranspose2d(4, 6, 3, 2, 1, output_padding=1),
-    lambda: torch.nn.ConvTranspose2d(4, 3, 3, 1, 2, dilation=2),
-    lambda: torch.nn.ConvTranspose2d(3, 2, (1, 2), (3, 1), (0, 3), output_padding=(2, 0)),
-], ids=["2x2 stride 2", "2x3 stride 2x3", "4x4 stride 2 pad 1", "output padding", "dilation 2",
-        "stride > kernel, padding > kernel"])
-def test_conv_transpose_gradients_equal_autograds(make, layout):
-    torch.manual_seed(0)
-    module = make().to(memory_format=layout)
-    x = torch.rand(3, module.in_channels, 5, 7).contiguous(memory_format=layout)
-    check_against_float64(module, x, conv_transpose_gradients)
+    check_against_float64(module, x, patch)
 
 
 @pytest.mark.parametrize("layout", [torch.contiguous_format, torch.channels_last])
