@@ -21,7 +21,7 @@ import dataclasses
 import math
 from pathlib import Path
 
-from compensation.evaluation.bench import BenchConfig, run_bench
+from compensation.experiments.bench import BenchConfig, run_bench
 from sim.io import write_text
 from sim.setup import load_setup, scene_path
 

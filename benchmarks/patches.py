@@ -30,7 +30,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import torch  # noqa: E402
 
 from compensation.data import load_setup_data  # noqa: E402
-from compensation.evaluation.metrics import evaluate  # noqa: E402
+from compensation.scores.metrics import evaluate  # noqa: E402
 from compensation.methods.compennet import CompenNetMethod, CompenNetOptions  # noqa: E402
 from compensation.training.config import TrainConfig  # noqa: E402
 from sim.dataset import FrameSpec, write_setup  # noqa: E402

@@ -17,7 +17,7 @@ Steps (each adds to the one above):
   as the strided convolutions they transpose; on AVX2 CPUs also the wide
   convolutions' weight gradients in the default layout; the first line says which);
 * ``retained heap``: freed memory kept in the heap for the next step (:mod:`sim.heap`) — procam's
-  CPU training step (:func:`~compensation.training.loop.fit_network`);
+  CPU training step (:func:`~compensation.methods.compennet.fit_network`);
 * ``compile`` (``--compile``): ``torch.compile`` of the network on top.
 
 Then, with ``--data``, the `quick` profile's training time and test PSNR/SSIM on the default setup.
@@ -42,8 +42,8 @@ import pytorch_msssim
 import torch
 import torch.nn.functional as F
 
-from compensation.evaluation.losses import l1, l1_ssim
-from compensation.evaluation.metrics import gaussian_window
+from compensation.scores.losses import l1, l1_ssim
+from compensation.scores.metrics import gaussian_window
 from compensation.methods.compennet import CompenNet
 from compensation.training.conv_grad import faster_backward, nchw_weight_gradients_pay
 from interleave import interleaved
@@ -149,8 +149,8 @@ def main() -> None:
     if args.data:
         import tempfile
 
-        from compensation.training.config import make_config
-        from compensation.training.runs import train_run
+        from compensation.methods import make_config
+        from compensation.experiments.runs import train_run
 
         with tempfile.TemporaryDirectory() as tmp:
             m = train_run(Path(args.data) / "default", make_config("quick"), Path(tmp) / "run")

@@ -145,8 +145,8 @@ def _option_type(hint) -> dict:
 def _training_options(p: argparse.ArgumentParser) -> None:
     """The profile, the options common to every method and every registered method's own options,
     generated from their dataclasses (type, choices and the field's docstring as help)."""
-    from compensation.methods import METHODS
-    from compensation.training.config import COMMON, TrainConfig, field_docs, option_owners
+    from compensation.methods import METHODS, option_owners
+    from compensation.training.config import COMMON, TrainConfig, field_docs
 
     p.add_argument("--profile", choices=["quick", "paper"], default="quick",
                    help="quick: CPU-sized; paper: 256², 500 pairs, 1000 iterations, batch 64")
@@ -166,15 +166,16 @@ def _training_options(p: argparse.ArgumentParser) -> None:
 
 def _given_options(args: argparse.Namespace) -> dict:
     """The training options given on the command line (common and method options)."""
-    from compensation.training.config import COMMON, option_owners
+    from compensation.methods import option_owners
+    from compensation.training.config import COMMON
 
     names = (*COMMON, *option_owners())
     return {k: getattr(args, k) for k in names if getattr(args, k, None) is not None}
 
 
 def cmd_train(args: argparse.Namespace) -> None:
-    from compensation.training.config import make_config
-    from compensation.training.runs import train_run
+    from compensation.experiments.runs import train_run
+    from compensation.methods import make_config
 
     cfg = make_config(args.profile, args.method, **_given_options(args))
     metrics = train_run(args.setup_dir, cfg, args.out, progress=not args.quiet, overwrite=args.overwrite)
@@ -205,7 +206,7 @@ def cmd_compensate(args: argparse.Namespace) -> None:
     import numpy as np
     import torch
 
-    from compensation.training.runs import compensate, read_run_config, run_size
+    from compensation.experiments.runs import compensate, read_run_config, run_size
     from sim.io import read_png, to_float, to_uint8, write_png
 
     def tensor(images: list) -> torch.Tensor:
@@ -254,7 +255,7 @@ def add_compensate(sub) -> None:
 
 
 def _executor_options(p: argparse.ArgumentParser) -> None:
-    from compensation.executors import EXECUTORS
+    from compensation.experiments.executors import EXECUTORS
 
     g = p.add_argument_group("where the jobs run")
     g.add_argument("--executor", choices=EXECUTORS, default="local",
@@ -268,13 +269,13 @@ def _executor_options(p: argparse.ArgumentParser) -> None:
 
 
 def _executor(args: argparse.Namespace):
-    from compensation.executors import make_executor
+    from compensation.experiments.executors import make_executor
 
     return make_executor(args.executor, args.address, args.processes)
 
 
 def cmd_bench(args: argparse.Namespace) -> None:
-    from compensation.evaluation.bench import BenchConfig, run_bench
+    from compensation.experiments.bench import BenchConfig, run_bench
 
     options = _given_options(args)
     n_test = options.pop("n_test", None)
@@ -334,7 +335,7 @@ def _methods(text: str) -> tuple[str, ...]:
 
 
 def cmd_study(args: argparse.Namespace) -> None:
-    from compensation.evaluation.studies import load_study, run_study, study_file, with_overrides
+    from compensation.experiments.studies import load_study, run_study, study_file, with_overrides
 
     study = with_overrides(load_study(study_file(args.study)), size=args.size, n_train=args.n_train,
                            n_test=args.n_test, iters=args.iters, seeds=args.seeds,
@@ -349,7 +350,7 @@ def cmd_study(args: argparse.Namespace) -> None:
     if done["failed"]:
         print(f"procam: warning: {done['failed']} of {done['jobs']} rows failed (their errors are in "
               f"results.csv and failures.csv)", file=sys.stderr)
-    from compensation.evaluation.report import build_report
+    from compensation.reports.report import build_report
 
     page = build_report(Path(args.out))
     print(f"procam: summary, break points, failures -> {Path(args.out)}/*.csv; charts -> "
@@ -402,7 +403,7 @@ def add_demo(sub) -> None:
 
 
 def cmd_report(args: argparse.Namespace) -> None:
-    from compensation.evaluation.report import build_report
+    from compensation.reports.report import build_report
 
     print(f"procam: report -> {build_report(Path(args.folder))}")
 

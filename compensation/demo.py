@@ -5,7 +5,7 @@ surrogate benchmark and in closed loop (their compensation projected back throug
 setup), beside the iterative-feedback oracle and the reachable share of pixels; print the table and
 write a figure: surface, uncompensated, each method's compensated capture, desired. The folder is a
 one-point bench (``study.json``, ``results.csv``, each run's closed-loop captures), and the demo ends
-by writing its HTML report (``report.html``, :mod:`compensation.evaluation.report`).
+by writing its HTML report (``report.html``, :mod:`compensation.reports.report`).
 """
 from __future__ import annotations
 
@@ -15,13 +15,14 @@ import numpy as np
 import torch
 
 from compensation.data import load_setup_data
-from compensation.evaluation.closed_loop import (closed_loop, closed_loop_scores, iterative_refinement,
+from compensation.experiments.closed_loop import (closed_loop, closed_loop_scores, iterative_refinement,
                                                  reachable_mask, reachable_overlay, simulator_for,
                                                  write_captures)
-from compensation.evaluation.report import build_report
-from compensation.evaluation.jobs import reusable, write_results, write_study_record
-from compensation.training.config import PROFILES, applicable, make_config
-from compensation.training.runs import SCORES, load_run, train_run
+from compensation.reports.report import build_report
+from compensation.experiments.jobs import reusable, write_results, write_study_record
+from compensation.methods import applicable, make_config
+from compensation.training.config import PROFILES
+from compensation.experiments.runs import SCORES, load_run, train_run
 from sim.dataset import FrameSpec, write_setup
 from sim.io import write_json, write_png
 from sim.setup import load_setup, scene_path

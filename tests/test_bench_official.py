@@ -11,7 +11,7 @@ import pytest
 
 from compensation.cli import main
 from compensation.data import load_setup_data
-from compensation.training.runs import load_run
+from compensation.experiments.runs import load_run
 from sim.io import read_png, to_uint8
 from synthetic import make_dataset
 

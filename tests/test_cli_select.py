@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-import compensation.evaluation.bench
+import compensation.experiments.bench
 from compensation.cli import main
 from sim.setup import load_setups
 
@@ -66,7 +66,7 @@ def test_only_selects_the_bench_setups(suite, tmp_path, monkeypatch):
         seen["names"], seen["limit"] = [s.name for s in setups], limit
         return {}
 
-    monkeypatch.setattr(compensation.evaluation.bench, "run_bench", fake_run_bench)
+    monkeypatch.setattr(compensation.experiments.bench, "run_bench", fake_run_bench)
     assert main(["bench", str(suite), "--only", "gamma,beta", "--out", str(tmp_path / "b"),
                  "--tables", "1", "--quiet"]) == 0
     assert seen == {"names": ["beta", "gamma"], "limit": None}

@@ -6,10 +6,11 @@ import pytest
 import torch
 
 from compensation.data import load_setup_data
-from compensation.evaluation.closed_loop import (closed_loop, closed_loop_scores, iterative_refinement,
+from compensation.experiments.closed_loop import (closed_loop, closed_loop_scores, iterative_refinement,
                                                  reachable_mask, reachable_overlay, simulator_for)
-from compensation.evaluation.metrics import masked_scores, psnr, rmse
-from compensation.methods.base import Method, NoOptions
+from compensation.scores.metrics import masked_scores, psnr, rmse
+from compensation.methods.base import Method
+from compensation.training.config import NoOptions
 from conftest import tiny_setup
 from sim.capture import Simulator
 from sim.dataset import FrameSpec, write_setup

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 from conftest import tiny_toml
-from compensation.evaluation.bench import BenchConfig, run_bench
-from compensation.executors import LocalExecutor, Task, attempt, make_executor
+from compensation.experiments.bench import BenchConfig, run_bench
+from compensation.experiments.executors import LocalExecutor, Task, attempt, make_executor
 from sim.errors import ProcamError
 from sim.setup import load_suite
 
@@ -54,7 +54,7 @@ def _table(path: Path) -> list[dict]:
 
 def test_ray_bench_equals_local(tmp_path):
     ray = pytest.importorskip("ray")
-    from compensation.executors import RayExecutor
+    from compensation.experiments.executors import RayExecutor
 
     (tmp_path / "base.toml").write_text(BASE)
     (tmp_path / "suite.toml").write_text(SUITE)

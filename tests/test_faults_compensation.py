@@ -18,8 +18,8 @@ import pytest
 
 from conftest import tiny_toml
 from compensation.cli import main
-from compensation.training.config import make_config
-from compensation.training.runs import partial_dir, train_run
+from compensation.methods import make_config
+from compensation.experiments.runs import partial_dir, train_run
 from sim.io import write_png
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -12,7 +12,7 @@ from scipy.ndimage import gaussian_filter
 from skimage import data
 from skimage.metrics import structural_similarity
 
-from compensation.evaluation import losses, metrics
+from compensation.scores import losses, metrics
 from compensation.methods import compennet
 
 

@@ -11,10 +11,10 @@ import pytest
 import torch
 
 from compensation.cli import main
-from compensation.evaluation.metrics import evaluate
-from compensation.methods import METHODS, get_method
-from compensation.training.config import COMMON, make_config, option_owners
-from compensation.training.runs import load_run, train_run
+from compensation.scores.metrics import evaluate
+from compensation.methods import METHODS, get_method, make_config, option_owners
+from compensation.training.config import COMMON
+from compensation.experiments.runs import load_run, train_run
 from sim.errors import ProcamError
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -65,8 +65,8 @@ def test_method_contract(name, data, tmp_path):
     cfg = small_config(name)
     method = cls("cpu")
     stats = method.fit(data, cfg, progress=False)
-    assert stats["seconds"] > 0 and stats["samples_per_second"] > 0
-    assert torch.isfinite(torch.tensor(stats["final_loss"]))
+    assert stats.seconds > 0 and stats.samples_per_second > 0
+    assert torch.isfinite(torch.tensor(stats.final_loss))
 
     x, s, y = data.test.captures, data.surface, data.test.frames
     predicted = method.predict(x, s, batch_size=cfg.eval_batch)

@@ -9,10 +9,9 @@ from conftest import tiny_setup
 
 from compensation.cli import main
 from compensation.data import load_setup_data
-from compensation.evaluation.closed_loop import closed_loop, simulator_for
-from compensation.methods import METHODS
-from compensation.training.config import applicable, make_config
-from compensation.training.runs import load_run, train_run
+from compensation.experiments.closed_loop import closed_loop, simulator_for
+from compensation.methods import METHODS, applicable, make_config
+from compensation.experiments.runs import load_run, train_run
 from sim.dataset import FrameSpec, write_setup
 from sim.io import read_json, read_png, write_png
 

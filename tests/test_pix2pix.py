@@ -17,8 +17,9 @@ from compensation.methods.compennet import CompenNet, CompenNetOptions, count_pa
 from compensation.methods.pix2pix import (LAMBDA_L1, LR, PIX2PIX_PROFILES, PatchDiscriminator, Pix2Pix,
                                           Pix2PixMethod, Pix2PixOptions, UNetGenerator, check_size,
                                           init_normal, unet_levels)
-from compensation.training.config import TrainConfig, make_config
-from compensation.training.runs import train_run
+from compensation.methods import make_config
+from compensation.training.config import TrainConfig
+from compensation.experiments.runs import train_run
 from sim.errors import ProcamError
 from synthetic import make_dataset, random_frames
 
@@ -130,12 +131,12 @@ def test_training_changes_weights_and_reduces_l1(fitted):
     state = method.model.state_dict()
     for prefix in ("generator.", "discriminator."):
         assert any(not torch.equal(state[k], initial[k]) for k in state if k.startswith(prefix))
-    l1 = [row[1] for row in stats["loss_curve"]]
-    assert len(l1) == stats["iters"] == 30 and stats["batch"] == 1
+    l1 = [row[1] for row in stats.loss_curve]
+    assert len(l1) == stats.extra["iters"] == 30 and stats.batch == 1
     assert np.mean(l1[-5:]) < 0.6 * np.mean(l1[:5])
-    assert stats["final_loss"] == pytest.approx(np.mean(l1[-10:]))
-    assert {row[2] for row in stats["loss_curve"]} == {LR}
-    assert all(np.isfinite(row[1:]).all() for row in stats["gan_curve"])
+    assert stats.final_loss == pytest.approx(np.mean(l1[-10:]))
+    assert {row[2] for row in stats.loss_curve} == {LR}
+    assert all(np.isfinite(row[1:]).all() for row in stats.extra["gan_curve"])
 
 
 def test_prediction_is_deterministic_and_per_image(fitted, inverse_setup):
@@ -233,8 +234,8 @@ def test_lr_and_l1_weight_are_used(inverse_setup):
     base_stats, base = fit()
     lr_stats, other_lr = fit(lr=1e-3)
     _, no_l1 = fit(l1_weight=0.0)
-    assert {row[2] for row in base_stats["loss_curve"]} == {LR}
-    assert {row[2] for row in lr_stats["loss_curve"]} == {1e-3}
+    assert {row[2] for row in base_stats.loss_curve} == {LR}
+    assert {row[2] for row in lr_stats.loss_curve} == {1e-3}
     key = "generator.down.0.weight"
     assert not torch.equal(base[key], other_lr[key]) and not torch.equal(base[key], no_l1[key])
     with pytest.raises(ProcamError, match=re.escape("option l1_weight = -1.0: expected a number >= 0")):

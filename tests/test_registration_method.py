@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from compensation.cli import main
-from compensation.evaluation.closed_loop import simulator_for
+from compensation.experiments.closed_loop import simulator_for
 from conftest import tiny_setup
 from sim import registration
 from sim.capture import Simulator

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from compensation.cli import main
-from compensation.evaluation.charts import pareto_front, speed_points
-from compensation.evaluation.report import build_report, load_folder
-from compensation.evaluation.jobs import RESULT_COLUMNS
-from compensation.evaluation.summary import summarize
+from compensation.reports.charts import pareto_front, speed_points
+from compensation.reports.report import build_report, load_folder
+from compensation.experiments.jobs import RESULT_COLUMNS
+from compensation.reports.summary import summarize
 from sim.errors import ProcamError
 from sim.io import write_png
 from tests.synthetic import make_dataset
@@ -129,7 +129,7 @@ def test_break_point_by_gain_and_per_second_axis(tmp_path):
     """Without nayar, tps breaks where its gain falls below 1 dB (0.5 dB at 2.0); with a second axis
     each of its values gets its own break point."""
     study, rows = load_folder(make_study(tmp_path))
-    from compensation.evaluation.summary import breakpoints
+    from compensation.reports.summary import breakpoints
 
     kept = [r for r in rows if r["method"] != "nayar"]
     found = {b["method"]: b for b in breakpoints(summarize(kept, [AXIS]), study)}
@@ -256,8 +256,8 @@ def test_real_bench_folder(tmp_path, capsys):
 def test_training_size_factor():
     """A factor that sets n_train (a training-size study): one line per method across sizes, and
     the break points are found along it (not one point per size)."""
-    from compensation.evaluation.charts import study_lines
-    from compensation.evaluation.summary import breakpoints
+    from compensation.reports.charts import study_lines
+    from compensation.reports.summary import breakpoints
 
     key = "train.n_train"
     cl = {"tps": [20.0, 22.0, 24.0], "compennet": [15.0, 20.0, 25.0]}
@@ -291,8 +291,8 @@ def test_bench_results_with_tables(tmp_path):
 
 def test_axis_on_n_train_round_trip(tmp_path):
     """An axis on n_train is the n_train column itself: written once, read back as an integer."""
-    from compensation.evaluation.jobs import write_results, write_study_record
-    from compensation.evaluation.summary import read_results
+    from compensation.experiments.jobs import write_results, write_study_record
+    from compensation.reports.summary import read_results
 
     rows = [{"point": p, "setup": "s", "method": "tps", "n_train": n, "seed": 0, "status": "ok",
              "cl_psnr": 20.0 + p, "cl_unc_psnr": 17.0, "fit_s": 0.123456789} for p, n in enumerate((8, 16))]

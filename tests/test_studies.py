@@ -15,9 +15,9 @@ import pytest
 
 from conftest import tiny_toml
 from compensation.cli import main
-from compensation.evaluation.jobs import RESULT_COLUMNS, run_status
-from compensation.evaluation.summary import STATUSES
-from compensation.evaluation.studies import expand, load_study, with_overrides
+from compensation.experiments.jobs import RESULT_COLUMNS, run_status
+from compensation.reports.summary import STATUSES
+from compensation.experiments.studies import expand, load_study, with_overrides
 from compensation.methods import METHODS
 from sim.errors import ProcamError
 from sim.setup.schema import SECTIONS
@@ -221,7 +221,7 @@ def test_run_status(tmp_path):
 
 
 def test_a_setup_that_cannot_render_fails_its_rows_only(tiny, monkeypatch, capsys):
-    import compensation.evaluation.jobs as jobs
+    import compensation.experiments.jobs as jobs
 
     real = jobs.write_setup
 

@@ -13,8 +13,8 @@ from scipy.interpolate import RBFInterpolator
 
 from compensation.data import PairSet, SetupData
 from compensation.methods import get_method, nayar, tps
-from compensation.training.config import TrainConfig
-from compensation.training.runs import load_run, train_run
+from compensation.training.config import NoOptions, TrainConfig
+from compensation.experiments.runs import load_run, train_run
 from sim.errors import ProcamError
 
 STATE = {"tps": tps.STATE_FILE, "tps-textured": tps.STATE_FILE, "nayar": nayar.STATE_FILE}
@@ -223,7 +223,7 @@ def test_nayar_compensates_in_gamut_targets_exactly():
     h, w = 3, 4
     v, o = planted_mixing(h * w, seed=2)
     method = nayar.NayarMethod("cpu")
-    method.fit(setup_data(*plain_images(h, w, v, o)), TrainConfig(method="nayar", device="cpu"),
+    method.fit(setup_data(*plain_images(h, w, v, o)), TrainConfig(method="nayar", options=NoOptions(), device="cpu"),
                progress=False)
     wanted = np.random.default_rng(6).uniform(0.05, 0.95, (h * w, 5, 3))  # projector inputs
     desired = np.einsum("pij,pmj->pmi", v, wanted ** GAMMA) + o[:, None]
@@ -331,7 +331,7 @@ def test_tps_fit_uses_the_smoothing_option(name, data, tmp_path):
         assert method.smoothing == smoothing
         method.save(tmp_path)
         assert get_method(name).load(tmp_path, "cpu").smoothing == smoothing
-        fitted[smoothing] = stats["final_loss"]
+        fitted[smoothing] = stats.final_loss
     assert fitted[0.0] < 1e-4 < fitted[0.5]
 
 

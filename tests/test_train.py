@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 import torch
 
-from compensation.evaluation.metrics import evaluate
-from compensation.methods import METHODS, get_method
+from compensation.scores.metrics import evaluate
+from compensation.methods import METHODS, check_config, config_from_dict, get_method, make_config
 from compensation.methods.base import load_state
 from compensation.methods.compennet import CompenNetOptions
 from compensation.methods.tps import TPSOptions
-from compensation.training.config import COMMON, PROFILES, TrainConfig, make_config
+from compensation.training.config import COMMON, PROFILES, TrainConfig
 from compensation.training.loop import BatchSampler
-from compensation.training.runs import (compensate, load_checkpoint, load_run, run_size,
+from compensation.experiments.runs import (compensate, load_checkpoint, load_run, run_size,
                                         scores_are_current, train_run)
 from sim.errors import ProcamError
 from sim.io import read_png, to_uint8
@@ -81,7 +81,7 @@ def test_run_directory(run, setup_dir, data):
     assert config["train"]["options"] == {"iters": 200, "batch": 8, "lr": 1e-3, "weight_decay": 1e-4,
                                           "lr_step": 800, "lr_gamma": 0.2, "loss": "l1+ssim",
                                           "sampler": "epoch", "amp": False, "init": None, "patch": 0}
-    assert TrainConfig.from_dict(config["train"]) == replace(tiny_config(), n_train=16, n_test=4)
+    assert config_from_dict(config["train"]) == replace(tiny_config(), n_train=16, n_test=4)
     assert config["dataset"] == str(setup_dir.resolve())
     assert config["image_size"] == {"width": 32, "height": 32} and run_size(config) == (32, 32)
     assert config["torch_version"] == torch.__version__
@@ -333,13 +333,17 @@ def test_make_config_profiles_and_errors():
 
 
 def test_train_config_checks_its_options():
-    assert TrainConfig(method="tps").options == TPSOptions()  # None: the method's defaults
+    assert make_config("quick", "tps").options == TPSOptions()  # the method's defaults
     with pytest.raises(ProcamError, match="method 'tps' takes TPSOptions, got CompenNetOptions"):
-        TrainConfig(method="tps", options=CompenNetOptions())
+        check_config(TrainConfig(method="tps", options=CompenNetOptions()))
+    with pytest.raises(ProcamError, match="method 'tps' takes TPSOptions, got CompenNetOptions"):
+        train_run("unused", TrainConfig(method="tps", options=CompenNetOptions()), "unused")
+    with pytest.raises(ProcamError, match="options must be the method's Options dataclass, got dict"):
+        TrainConfig(method="tps", options={"smoothing": 0.1})
     assert set(COMMON) == {"n_train", "n_test", "seed", "device", "eval_batch"}
-    for name in METHODS:  # to_dict / from_dict round trip, for every method's defaults
+    for name in METHODS:  # to_dict / config_from_dict round trip, for every method's defaults
         cfg = make_config("quick", name)
-        assert TrainConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+        assert config_from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
 
 
 def test_registry():

@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from compensation.methods.base import load_state
-from compensation.training.runs import CHECKPOINT_FILE, partial_dir
+from compensation.experiments.runs import CHECKPOINT_FILE, partial_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -68,8 +68,8 @@ def test_resume_is_bit_identical(setup_dir, tmp_path, method, how):
 
 def test_changed_config_discards_partial_state(setup_dir, tmp_path):
     """A partial run of another configuration is not resumed: it is replaced."""
-    from compensation.training.config import make_config
-    from compensation.training.runs import train_run
+    from compensation.methods import make_config
+    from compensation.experiments.runs import train_run
 
     run = tmp_path / "run"
     partial = partial_dir(run)

@@ -12,13 +12,14 @@ import torch
 import torch.nn.functional as F
 
 from compensation.data import PairSet, SetupData
-from compensation.evaluation import metrics
-from compensation.evaluation.losses import l1
+from compensation.scores import metrics
+from compensation.scores.losses import l1
 from compensation.methods import get_method
 from compensation.methods.compennet import CompenNet, CompenNetOptions
 from compensation.training.config import TrainConfig
-from compensation.training.loop import BatchSampler, CropSampler, fit_network
-from compensation.training.runs import train_run
+from compensation.methods.compennet import fit_network
+from compensation.training.loop import BatchSampler, CropSampler
+from compensation.experiments.runs import train_run
 from sim.errors import ProcamError
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -140,7 +141,7 @@ def test_patch_windows_are_aligned():
                           method="division")
     result = fit_network(model, data, cfg, use_surface=True, progress=False)
     assert set(model.seen) == {(4, 3, 8, 8)}
-    assert max(loss for _, loss, _ in result["loss_curve"]) < 1e-6  # exact inverse on every window
+    assert max(loss for _, loss, _ in result.loss_curve) < 1e-6  # exact inverse on every window
     # the windows move around (a fixed corner would pass the test above trivially)
     crops = CropSampler(32, 32, 8, seed=0)
     assert len({next(crops) for _ in range(20)}) > 15

@@ -1,7 +1,8 @@
 """What every compensation method π† is: captures x̃ (and the surface s̃) → projector frames x.
 
-A method is a :class:`Method` subclass with a registry ``name`` and an :class:`Options` dataclass
-(its own training options, each field documented with unit, range and the paper's value). It fits
+A method is a :class:`Method` subclass with a registry ``name`` and an
+:class:`~compensation.training.config.Options` dataclass (its own training options, each field
+documented with unit, range and the paper's value) and owns its training recipe. It fits
 on a :class:`~compensation.data.SetupData`, predicts in batches, and saves to / loads from a run
 directory. The helpers here (device choice, plain state dicts, ``.npz`` states) serve every method.
 """
@@ -10,18 +11,19 @@ from __future__ import annotations
 import abc
 import pickle
 import re
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 import torch
 
+from compensation.training.config import Options, TrainConfig
+from compensation.training.loop import LoopResult
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
     from compensation.data import SetupData
-    from compensation.training.config import TrainConfig
 
 CHECKPOINT = "model.pt"
 """File name of a run's weights: a plain state dict (tensors only)."""
@@ -152,45 +154,29 @@ def load_weights(model: torch.nn.Module, path: Path, what: str) -> None:
 
 
 @dataclass(frozen=True)
-class Options:
-    """Base of every method's options: a frozen dataclass, one documented field per option.
+class FitResult:
+    """What fitting a method measured (``Method.fit``'s result; a run records it)."""
 
-    Subclasses declare fields with defaults (the paper's values) and a docstring each (unit,
-    range, paper value); :func:`compensation.training.config.field_docs` reads those docstrings
-    for the command line. ``profiles`` holds per-profile defaults (``quick``/``paper``) layered
-    under explicit values; :meth:`check` validates ranges.
-    """
-
-    profiles: ClassVar[dict[str, dict]] = {}
-    """Field values per training profile, layered over the field defaults."""
-
-    def __post_init__(self):
-        self.check()
-
-    def check(self) -> None:
-        """Raise :class:`ProcamError` naming the option and the expected range (none by default)."""
-
-    def _require(self, name: str, ok: bool, expected: str) -> None:
-        """Raise a :class:`ProcamError` "``name`` = value: expected …" unless ``ok``."""
-        if not ok:
-            raise ProcamError(f"option {name} = {getattr(self, name)!r}: expected {expected}")
-
-    def _positive_ints(self, *names: str) -> None:
-        """Check that each named field is an integer >= 1 (None allowed where typed optional)."""
-        for name in names:
-            value = getattr(self, name)
-            self._require(name, value is None or (isinstance(value, int) and not isinstance(value, bool)
-                                                  and value >= 1), "a positive integer")
+    seconds: float
+    """Wall-clock time of the fit."""
+    samples_per_second: float
+    """Training pairs processed per second."""
+    final_loss: float
+    """The fit's last training loss (a network: mean of the last 10 iterations; a closed-form fit:
+    its residual at the samples)."""
+    batch: int
+    """Samples per step (a network's effective batch; a per-pixel fit: samples per pixel)."""
+    loss_curve: list[tuple[int, float, float]]
+    """Per iteration: (iteration, loss, learning rate); one row for a closed-form fit."""
+    extra: dict = field(default_factory=dict)
+    """Method-specific statistics (e.g. TPS's ``degenerate_pixels``, pix2pix's ``gan_curve``)."""
 
     @classmethod
-    def names(cls) -> tuple[str, ...]:
-        """The option names, in declaration order."""
-        return tuple(f.name for f in fields(cls))
-
-
-@dataclass(frozen=True)
-class NoOptions(Options):
-    """Options of a method that has none."""
+    def of_loop(cls, result: LoopResult, **extra) -> FitResult:
+        """The fit of a network trained by :func:`~compensation.training.loop.train_loop`, whose
+        step returned (loss, learning rate, …)."""
+        return cls(result.seconds, result.samples_per_second, result.final_loss, result.batch,
+                   [(i + 1, v[0], v[1]) for i, v in enumerate(result.values)], extra)
 
 
 class Method(abc.ABC):
@@ -211,7 +197,7 @@ class Method(abc.ABC):
 
     @abc.abstractmethod
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
-            checkpoint: Path | None = None) -> dict:
+            checkpoint: Path | None = None) -> FitResult:
         """Fit on ``data.train`` (and ``data.ref`` / ``data.surface`` as the method needs).
 
         ``cfg.options`` is an instance of the method's :attr:`options`; ``cfg.seed`` and
@@ -221,10 +207,8 @@ class Method(abc.ABC):
 
         Returns
         -------
-        dict
-            Statistics: ``seconds`` (wall-clock training time), ``samples_per_second``,
-            ``final_loss``, ``batch`` (samples per step), ``loss_curve`` (list of (iteration,
-            loss, learning rate)).
+        FitResult
+            What the fit measured.
         """
 
     @abc.abstractmethod

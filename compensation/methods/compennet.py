@@ -22,10 +22,14 @@ skipConv1              3 × [Conv 3→3, 3×3, padding 1; ReLU]
 skipConv2              Conv 32→64, 1×1
 skipConv3              Conv 64→128, 1×1
 =====================  ==================================================
+
+Training is the paper's recipe, :func:`fit_network` (Adam, step decay, ℓ1 + (1 − SSIM) by
+default, optional patch windows), run by the generic loop of :mod:`compensation.training.loop`.
 """
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Literal
@@ -33,15 +37,16 @@ from typing import TYPE_CHECKING, ClassVar, Literal
 import torch
 from torch import Tensor, nn
 
-from compensation.evaluation.losses import LOSSES
-from compensation.methods.base import (CHECKPOINT, Method, Options, load_weights, resolve_device,
+from compensation.methods.base import (CHECKPOINT, FitResult, Method, load_weights, resolve_device,
                                        save_state, weights_file)
-from compensation.training.loop import fit_network
+from compensation.scores.losses import LOSSES, get_loss
+from compensation.training.config import Options, TrainConfig
+from compensation.training.conv_grad import faster_backward
+from compensation.training.loop import CropSampler, train_loop
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
     from compensation.data import SetupData
-    from compensation.training.config import TrainConfig
 
 SurfaceFeatures = tuple[Tensor, Tensor, Tensor, Tensor]
 """The ReLU outputs of ``conv1_s``…``conv4_s`` (res1_s…res4_s), each (B, C, h, w) with B = 1 or N."""
@@ -356,7 +361,7 @@ class CompenNetMethod(Method):
         self.model: CompenNet | None = None
 
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
-            checkpoint: Path | None = None) -> dict:
+            checkpoint: Path | None = None) -> FitResult:
         self.device = resolve_device(cfg.device)
         if cfg.options.patch > min(data.size):
             raise ProcamError(f"option patch = {cfg.options.patch}: expected at most the image's "
@@ -411,3 +416,85 @@ class CompenNetNoSurfMethod(CompenNetMethod):
     official_name = "CompenNet_wo_surf"
     surface = False
 
+def _autocast_dtype() -> torch.dtype:
+    """Mixed-precision type on CUDA: bf16 where the GPU supports it (no scaler needed), else fp16."""
+    return torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
+
+
+def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_surface: bool,
+                progress: bool = True, checkpoint: Path | None = None) -> FitResult:
+    """Train a CompenNet-style ``model`` (already on its device) on ``data.train``: the paper's recipe.
+
+    Adam(lr, weight_decay), StepLR(lr_step, lr_gamma), batches as ``cfg.options.sampler``
+    draws them, the loss named by ``cfg.options.loss``; with ``use_surface`` the network's surface
+    branch is fed s̃ with batch 1, broadcast over the batch (computed once per batch, not once per
+    sample). With ``cfg.options.patch`` > 0 every step trains on one random window of that side cut
+    out of the batch's captures, frames and the surface alike (:class:`CropSampler`). On CUDA with
+    ``cfg.options.amp``, autocast plus a gradient scaler (fp16 only); on the CPU the amp flag
+    changes nothing.
+
+    The network and the images are kept in the channels-last memory layout while training
+    (oneDNN's native layout on the CPU, ``benchmarks/train.py`` measures its effect; the layout of
+    CUDA's tensor-core convolutions); the values are those of the default layout to float
+    rounding, and the model is returned in the default layout. On the CPU the transposed
+    convolutions take their backward pass as the strided convolutions they transpose, and on
+    AVX2 CPUs the wide convolutions their weight gradient in the default layout
+    (:func:`~compensation.training.conv_grad.faster_backward`).
+
+    Returns
+    -------
+    FitResult
+        The loop's timing, effective batch and loss curve (iteration, loss, learning rate).
+    """
+    opt = cfg.options
+    device = next(model.parameters()).device
+    use_amp = opt.amp and device.type == "cuda"
+    amp_dtype = _autocast_dtype() if use_amp else torch.float32
+    scaler = torch.amp.GradScaler(device.type, enabled=use_amp and amp_dtype == torch.float16)
+    model.to(memory_format=torch.channels_last)
+    optimizer = torch.optim.Adam(model.parameters(), lr=opt.lr, weight_decay=opt.weight_decay)
+    scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=opt.lr_step, gamma=opt.lr_gamma)
+    loss_fn = get_loss(opt.loss)
+    captures = _channels_last(data.train.captures.to(device))
+    frames = _channels_last(data.train.frames.to(device))
+    surface = _channels_last(data.surface.to(device)) if use_surface else None
+    crops = CropSampler(*captures.shape[2:], opt.patch, cfg.seed) if opt.patch else None
+
+    def step(idx: torch.Tensor) -> torch.Tensor:
+        x, y, s = captures[idx], frames[idx], surface
+        if crops is not None:
+            top, left = next(crops)
+            window = (..., slice(top, top + opt.patch), slice(left, left + opt.patch))
+            x, y = x[window], y[window]
+            s = s if s is None else s[window]
+        x, y, s = _channels_last(x), _channels_last(y), s if s is None else _channels_last(s)
+        with torch.autocast(device.type, dtype=amp_dtype, enabled=use_amp):
+            pred = model(x, s)
+        loss = loss_fn(pred.float(), y)
+        optimizer.zero_grad(set_to_none=True)
+        scaler.scale(loss).backward()
+        scaler.step(optimizer)
+        scaler.update()
+        rate = scheduler.get_last_lr()[0]
+        scheduler.step()
+        return torch.stack([loss.detach().double(), torch.tensor(rate, dtype=torch.float64, device=device)])
+
+    stateful = {"model": model, "optimizer": optimizer, "scheduler": scheduler}
+    if scaler.is_enabled():
+        stateful["scaler"] = scaler
+    if crops is not None:
+        stateful["crops"] = crops
+    model.train()
+    try:
+        with faster_backward(model) if device.type == "cpu" else nullcontext():
+            result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
+                                ("loss", "lr"), f"train {cfg.method} on {data.name}", progress,
+                                stateful, checkpoint, sampler=opt.sampler)
+    finally:
+        model.to(memory_format=torch.contiguous_format)
+    return FitResult.of_loop(result)
+
+
+def _channels_last(images: torch.Tensor) -> torch.Tensor:
+    """``images`` (N, C, H, W) in the channels-last memory layout (no copy if already so)."""
+    return images.contiguous(memory_format=torch.channels_last)

@@ -34,13 +34,13 @@ import numpy as np
 import torch
 
 from compensation.data import N_PLAIN
-from compensation.methods.base import Method, NoOptions, load_arrays, resolve_device
+from compensation.methods.base import FitResult, Method, load_arrays, resolve_device
 from compensation.methods.tps import pixel_samples
+from compensation.training.config import NoOptions, TrainConfig
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
     from compensation.data import SetupData
-    from compensation.training.config import TrainConfig
 
 STATE_FILE = "nayar.npz"
 """File name of the fitted model in a run directory (NumPy ``.npz``, no pickles)."""
@@ -236,15 +236,14 @@ class NayarMethod(Method):
         self._inverse: torch.Tensor | None = None
 
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
-            checkpoint: Path | None = None) -> dict:
+            checkpoint: Path | None = None) -> FitResult:
         """Estimate γ, then every pixel's V and o.
 
         Returns
         -------
-        dict
-            ``seconds``; ``samples_per_second`` (plain-colour pairs per second); ``final_loss``,
-            the mean |π†(c̃ᵢ) − xᵢ| over the plain colours (projector input units); ``batch``
-            (125); ``loss_curve`` (that one value); ``gamma`` (the three exponents).
+        FitResult
+            ``final_loss`` is the mean |π†(c̃ᵢ) − xᵢ| over the plain colours (projector input
+            units), ``batch`` 125, ``extra["gamma"]`` the three exponents.
         """
         self.device = resolve_device(cfg.device)
         captures, frames = data.ref.captures[:N_PLAIN], data.ref.frames[:N_PLAIN]
@@ -255,8 +254,8 @@ class NayarMethod(Method):
         self._set_state(tuple(captures.shape[-2:]), torch.from_numpy(gamma), matrix, offset)
         seconds = time.perf_counter() - start
         residual = (self.predict(captures, data.surface) - frames).abs().mean().item()
-        return {"seconds": seconds, "samples_per_second": N_PLAIN / seconds, "final_loss": residual,
-                "batch": N_PLAIN, "loss_curve": [(1, residual, 0.0)], "gamma": gamma.tolist()}
+        return FitResult(seconds, N_PLAIN / seconds, residual, N_PLAIN, [(1, residual, 0.0)],
+                         {"gamma": gamma.tolist()})
 
     def _set_state(self, size: tuple[int, int], gamma: torch.Tensor, matrix: torch.Tensor,
                    offset: torch.Tensor) -> None:

@@ -40,14 +40,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from compensation.methods.base import (CHECKPOINT, Method, Options, load_state, load_weights,
+from compensation.methods.base import (CHECKPOINT, FitResult, Method, load_state, load_weights,
                                        resolve_device, save_state, weights_file)
+from compensation.training.config import Options, TrainConfig
 from compensation.training.loop import train_loop
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
     from compensation.data import SetupData
-    from compensation.training.config import TrainConfig
 
 PIX2PIX_PROFILES: dict[str, dict] = {
     # The CompenNet paper's baseline: 10,000 iterations at batch 1 (= 20 epochs of 500 pairs, all
@@ -378,7 +378,7 @@ class Pix2PixMethod(Method):
         self.model: Pix2Pix | None = None
 
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
-            checkpoint: Path | None = None) -> dict:
+            checkpoint: Path | None = None) -> FitResult:
         """Train generator and discriminator on ``data.train`` (the official update order).
 
         Each iteration: G(x̃); one discriminator step on ½·(BCE(D(x̃, G(x̃)), 0) + BCE(D(x̃, x), 1));
@@ -386,10 +386,9 @@ class Pix2PixMethod(Method):
 
         Returns
         -------
-        dict
-            ``seconds``, ``samples_per_second``, ``iters``, ``batch`` (effective), ``final_loss``
-            (mean of the last 10 iterations), ``loss_curve`` (iteration, ℓ1 term, learning rate)
-            with ℓ1 in [0, 1] image units, ``gan_curve`` (iteration, generator GAN loss,
+        FitResult
+            ``loss_curve`` holds (iteration, ℓ1 term, learning rate) with ℓ1 in [0, 1] image
+            units; ``extra`` holds ``iters`` and ``gan_curve`` (iteration, generator GAN loss,
             discriminator loss).
 
         Raises
@@ -422,10 +421,9 @@ class Pix2PixMethod(Method):
                             stateful, checkpoint)
         disc.requires_grad_(True)
         rows = result.values
-        return {"seconds": result.seconds, "samples_per_second": result.samples_per_second,
-                "iters": opt.iters, "batch": result.batch, "final_loss": result.final_loss,
-                "loss_curve": [(i + 1, r[0], opt.lr) for i, r in enumerate(rows)],
-                "gan_curve": [(i + 1, r[1], r[2]) for i, r in enumerate(rows)]}
+        return FitResult(result.seconds, result.samples_per_second, result.final_loss, result.batch,
+                         [(i + 1, r[0], opt.lr) for i, r in enumerate(rows)],
+                         {"iters": opt.iters, "gan_curve": [(i + 1, r[1], r[2]) for i, r in enumerate(rows)]})
 
     @torch.no_grad()
     def predict(self, captures: torch.Tensor, surface: torch.Tensor, batch_size: int = 64) -> torch.Tensor:

@@ -67,13 +67,13 @@ from scipy.spatial.distance import cdist
 from tqdm import tqdm
 
 from compensation.data import N_PLAIN, PairSet
-from compensation.methods.base import Method, Options, load_arrays, resolve_device
+from compensation.methods.base import FitResult, Method, load_arrays, resolve_device
+from compensation.training.config import Options, TrainConfig
 from sim.cores import usable_cores
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
     from compensation.data import SetupData
-    from compensation.training.config import TrainConfig
 
 SMOOTHING = 1e-2
 """Default smoothing λ of ``tps`` (plain colours), added to the kernel diagonal.
@@ -335,15 +335,15 @@ class TPSMethod(Method):
         return PairSet(data.ref.captures[:N_PLAIN], data.ref.frames[:N_PLAIN])
 
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
-            checkpoint: Path | None = None) -> dict:
+            checkpoint: Path | None = None) -> FitResult:
         """Fit every pixel's spline on :meth:`training_pairs`.
 
         Returns
         -------
-        dict
-            ``seconds``; ``samples_per_second`` (training pairs per second); ``final_loss``, the
-            mean |f(c̃ᵢ) − xᵢ| at the samples (nonzero only through smoothing); ``batch``, the
-            samples per pixel; ``loss_curve`` (that one value); ``degenerate_pixels``.
+        FitResult
+            ``final_loss`` is the mean |f(c̃ᵢ) − xᵢ| at the samples (nonzero only through
+            smoothing), ``batch`` the samples per pixel, ``extra["degenerate_pixels"]`` the pixels
+            whose samples could not determine a spline.
         """
         pairs = self.training_pairs(data, cfg)
         if len(pairs) < 4:
@@ -358,8 +358,8 @@ class TPSMethod(Method):
         seconds = time.perf_counter() - start
         self._set_state(tuple(pairs.captures.shape[-2:]), torch.from_numpy(centres),
                         torch.from_numpy(coeffs))
-        return {"seconds": seconds, "samples_per_second": len(pairs) / seconds, "final_loss": residual,
-                "batch": len(pairs), "loss_curve": [(1, residual, 0.0)], "degenerate_pixels": degenerate}
+        return FitResult(seconds, len(pairs) / seconds, residual, len(pairs), [(1, residual, 0.0)],
+                         {"degenerate_pixels": degenerate})
 
     def _set_state(self, size: tuple[int, int], centres: torch.Tensor, coeffs: torch.Tensor) -> None:
         self.size = size

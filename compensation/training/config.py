@@ -1,22 +1,65 @@
 """What one training run is: the method, its options, the data it sees, its seed and device.
 
-:class:`TrainConfig` holds what every method shares (data sizes, seed, device, prediction batch)
-and the method's own options (:class:`~compensation.methods.base.Options`). :func:`make_config`
-layers a named profile, the method's profile values and explicit options, and refuses an option
-the method does not have, naming the method and the option.
+:class:`Options` is the base of every method's own options (a frozen dataclass, one documented
+field per option); :class:`TrainConfig` holds what every method shares (data sizes, seed, device,
+prediction batch) and the method's options. Building a configuration for a method by name (profiles
+layered under explicit values, options the method does not take refused) needs the method registry:
+:func:`compensation.methods.make_config`.
 """
 from __future__ import annotations
 
 import ast
 import inspect
+import re
 import textwrap
 from dataclasses import asdict, dataclass, fields
 from functools import cache
-from pathlib import Path
+from typing import ClassVar
 
-from compensation.methods import METHODS, get_method
-from compensation.methods.base import Options
 from sim.errors import ProcamError
+
+
+@dataclass(frozen=True)
+class Options:
+    """Base of every method's options: a frozen dataclass, one documented field per option.
+
+    Subclasses declare fields with defaults (the paper's values) and a docstring each (unit,
+    range, paper value); :func:`field_docs` reads those docstrings for the command line.
+    ``profiles`` holds per-profile defaults (``quick``/``paper``) layered under explicit values;
+    :meth:`check` validates ranges.
+    """
+
+    profiles: ClassVar[dict[str, dict]] = {}
+    """Field values per training profile, layered over the field defaults."""
+
+    def __post_init__(self):
+        self.check()
+
+    def check(self) -> None:
+        """Raise :class:`ProcamError` naming the option and the expected range (none by default)."""
+
+    def _require(self, name: str, ok: bool, expected: str) -> None:
+        """Raise a :class:`ProcamError` "``name`` = value: expected …" unless ``ok``."""
+        if not ok:
+            raise ProcamError(f"option {name} = {getattr(self, name)!r}: expected {expected}")
+
+    def _positive_ints(self, *names: str) -> None:
+        """Check that each named field is an integer >= 1 (None allowed where typed optional)."""
+        for name in names:
+            value = getattr(self, name)
+            self._require(name, value is None or (isinstance(value, int) and not isinstance(value, bool)
+                                                  and value >= 1), "a positive integer")
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The option names, in declaration order."""
+        return tuple(f.name for f in fields(cls))
+
+
+@dataclass(frozen=True)
+class NoOptions(Options):
+    """Options of a method that has none."""
+
 
 PROFILES: dict[str, dict] = {
     # The paper's setting, meant for a GPU.
@@ -34,10 +77,11 @@ dataset's size)."""
 class TrainConfig:
     """How to train one method on one setup."""
 
-    method: str = "compennet"
+    method: str
     """Registered method name (``compennet``, ``tps``, …)."""
-    options: Options | None = None
-    """The method's options (an instance of its ``options`` class); None: its defaults."""
+    options: Options
+    """The method's options (an instance of its ``options`` class; the registry's
+    :func:`~compensation.methods.make_config` builds the right one by method name)."""
     profile: str = "paper"
     """Profile the values came from (``paper`` or ``quick``); recorded only."""
     n_train: int | None = 500
@@ -52,12 +96,9 @@ class TrainConfig:
     """Images per forward pass when predicting (>= 1; does not change results)."""
 
     def __post_init__(self):
-        cls = get_method(self.method).options
-        if self.options is None:
-            object.__setattr__(self, "options", cls())
-        elif type(self.options) is not cls:
-            raise ProcamError(f"method {self.method!r} takes {cls.__name__}, got "
-                              f"{type(self.options).__name__}")
+        if not isinstance(self.options, Options):
+            raise ProcamError(f"method {self.method!r}: options must be the method's Options "
+                              f"dataclass, got {type(self.options).__name__}")
         if self.profile not in PROFILES:
             raise ProcamError(f"profile {self.profile!r}: choose one of {', '.join(PROFILES)}")
         for key in ("n_train", "n_test", "eval_batch"):
@@ -72,81 +113,23 @@ class TrainConfig:
         return {**{f.name: getattr(self, f.name) for f in fields(self) if f.name != "options"},
                 "options": asdict(self.options)}
 
-    @classmethod
-    def from_dict(cls, data: dict) -> TrainConfig:
-        """The inverse of :meth:`to_dict`."""
-        data = dict(data)
-        options = get_method(data["method"]).options(**data.pop("options"))
-        return cls(options=options, **data)
-
 
 COMMON = tuple(f.name for f in fields(TrainConfig) if f.name not in ("method", "options", "profile"))
 """Options every method takes."""
 
 
-def make_config(profile: str = "paper", method: str = "compennet", **values) -> TrainConfig:
-    """A TrainConfig from a named profile, the method's profile values and explicit values.
-
-    Layers: :data:`PROFILES` ``[profile]``, then the method's ``Options.profiles[profile]``, then
-    ``values`` (common keys of :data:`COMMON` and the method's option names; None values are
-    ignored).
-
-    Raises
-    ------
-    ProcamError
-        If the profile or method is unknown, a key is neither common nor an option of the method
-        (the message names the method, the option and the options it has), or a value is out of
-        range.
-
-    Examples
-    --------
-    >>> make_config("quick", "compennet", iters=20).options.iters
-    20
-    >>> make_config("quick", "tps", loss="ssim")
-    Traceback (most recent call last):
-    ...
-    sim.errors.ProcamError: method 'tps' does not use option 'loss' (its options: smoothing, workers; common: n_train, n_test, seed, device, eval_batch)
-    """
-    if profile not in PROFILES:
-        raise ProcamError(f"profile {profile!r}: choose one of {', '.join(PROFILES)}")
-    options_cls = get_method(method).options
-    values = {k: v for k, v in values.items() if v is not None}
-    if unknown := [k for k in values if k not in COMMON and k not in options_cls.names()]:
-        raise ProcamError(
-            f"method {method!r} does not use option{'s' if len(unknown) > 1 else ''} "
-            f"{', '.join(repr(k) for k in unknown)} (its options: "
-            f"{', '.join(options_cls.names()) or 'none'}; common: {', '.join(COMMON)})")
-    common = {k: v for k, v in PROFILES[profile].items() if k in COMMON}
-    common.update({k: v for k, v in values.items() if k in COMMON})
-    own = {**options_cls.profiles.get(profile, {}),
-           **{k: v for k, v in values.items() if k in options_cls.names()}}
-    if own.get("init"):  # recorded as an absolute path: the same run from any working directory
-        own["init"] = str(Path(own["init"]).resolve())
-    try:
-        options = options_cls(**own)
-    except TypeError as exc:
-        raise ProcamError(f"method {method!r}: {exc}") from None
-    return TrainConfig(method=method, options=options, profile=profile, **common)
-
-
-def applicable(method: str, values: dict) -> dict:
-    """The entries of ``values`` that ``method`` takes (common options and its own).
-
-    >>> applicable("tps", {"iters": 20, "seed": 1, "smoothing": 0.1})
-    {'seed': 1, 'smoothing': 0.1}
-    """
-    names = set(COMMON) | set(get_method(method).options.names())
-    return {k: v for k, v in values.items() if k in names}
-
-
 @cache
 def field_docs(cls: type) -> dict[str, str]:
-    """The docstring under each field of a dataclass (attribute docstrings), by field name.
+    """The docstring under each field of a dataclass (attribute docstrings), by field name, as
+    plain text (the command line's help): roles such as ``:data:`X``` and double back-quotes are
+    reduced to their text.
 
     Examples
     --------
     >>> field_docs(TrainConfig)["seed"]
     'Seeds initialisation, batch order and any sampling of the method (paper 0).'
+    >>> field_docs(TrainConfig)["options"]
+    "The method's options (an instance of its options class; the registry's make_config builds the right one by method name)."
     """
     docs: dict[str, str] = {}
     for klass in reversed(cls.__mro__):
@@ -157,14 +140,15 @@ def field_docs(cls: type) -> dict[str, str]:
             if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
                     and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
                     and isinstance(after.value.value, str)):
-                docs[node.target.id] = " ".join(after.value.value.split())
+                docs[node.target.id] = plain_text(after.value.value)
     return docs
 
 
-def option_owners() -> dict[str, list[str]]:
-    """Every method option name → the registered methods that take it (registry order)."""
-    owners: dict[str, list[str]] = {}
-    for name, cls in METHODS.items():
-        for option in cls.options.names():
-            owners.setdefault(option, []).append(name)
-    return owners
+def plain_text(doc: str) -> str:
+    """A docstring fragment as one line of plain text: reST roles and literals reduced to their text.
+
+    >>> plain_text(":data:`SIZE_MULTIPLE` pixels, ``None`` uses\n  :func:`~compensation.methods.make_config`")
+    'SIZE_MULTIPLE pixels, None uses make_config'
+    """
+    doc = re.sub(r":\w+:`~?([^`]+)`", lambda m: m.group(1).rsplit(".", 1)[-1], doc)
+    return " ".join(doc.replace("``", "").split())

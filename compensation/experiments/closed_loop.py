@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from compensation.data import SetupData
-from compensation.evaluation.metrics import evaluate, masked_scores
+from compensation.scores.metrics import evaluate, masked_scores
 from sim import seeds
 from sim.capture import Simulator
 from sim.dataset import canonical_size, image_name

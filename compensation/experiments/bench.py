@@ -15,11 +15,11 @@ Each run also leaves the official code's outputs, in the official layout under
     cam/cmp/<tag>/img_XXXX.png    π†(x̃) for the test captures x̃ (what the surrogate metrics score)
     prj/cmp/<tag>/img_XXXX.png    π†(y) for the test images y: the frames to project
 
-with the tag of :func:`~compensation.evaluation.official.official_tag` (e.g.
+with the tag of :func:`~compensation.experiments.official.official_tag` (e.g.
 ``CompenNet_l1+ssim_500_64_1000``).
 
 The bench is a study without axes: its renders, runs and baselines are the jobs of
-:mod:`compensation.evaluation.jobs`, run by an executor of :mod:`compensation.executors`, and its
+:mod:`compensation.experiments.jobs`, run by an executor of :mod:`compensation.experiments.executors`, and its
 folder holds the same ``study.json`` (kind ``bench``) and ``results.csv`` as a study's.
 """
 from __future__ import annotations
@@ -28,12 +28,12 @@ import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from compensation.evaluation.jobs import (BaselineJob, FitJob, RenderJob, baselines, fit, render,
+from compensation.experiments.jobs import (BaselineJob, FitJob, RenderJob, baselines, fit, render,
                                           result_row, simulated, tasks, write_results, write_study_record)
-from compensation.evaluation.tables import LOSSES, TABLE2, write_tables
-from compensation.executors import LocalExecutor
-from compensation.methods import get_method
-from compensation.training.config import COMMON, PROFILES, applicable, make_config
+from compensation.reports.tables import LOSSES, TABLE2, write_tables
+from compensation.experiments.executors import LocalExecutor
+from compensation.methods import applicable, get_method, make_config
+from compensation.training.config import COMMON, PROFILES
 from sim.dataset import FrameSpec
 from sim.errors import ProcamError
 
@@ -162,7 +162,7 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
     """Run the benchmark and write its tables.
 
     Resumable: a run whose ``metrics.json`` exists and whose configuration equals the job's is
-    reused (:func:`~compensation.evaluation.jobs.reusable`); any other run folder is trained
+    reused (:func:`~compensation.experiments.jobs.reusable`); any other run folder is trained
     again. A failing run is recorded in ``failures.json`` and in ``results.csv`` (status
     ``failed``) and does not lose the others.
 

@@ -2,7 +2,7 @@
 
 ``results.csv`` holds one row per (point, setup, method, n_train, seed): the point's axis values,
 the run's ``status`` and its scores (surrogate, closed loop, uncompensated, oracle) and timings
-(:data:`compensation.evaluation.jobs.RESULT_COLUMNS`; missing values are empty cells). From it:
+(:data:`compensation.experiments.jobs.RESULT_COLUMNS`; missing values are empty cells). From it:
 
 ``summary.csv``
     mean and standard deviation over seeds (and setups) per (point, method, n_train), ``ok`` runs
@@ -35,7 +35,7 @@ SCORES = (*METRICS, *(f"cl_{m}" for m in METRICS), *(f"unc_{m}" for m in METRICS
 """The numeric columns of ``results.csv`` (empty cells read as NaN)."""
 STATUSES = ("ok", "failed", "nan", "diverged")
 """Values of the ``status`` column: finished; raised an error (``error`` says which); a score is not
-finite; the training loss grew (:data:`compensation.evaluation.jobs.DIVERGED_RATIO`) or is not
+finite; the training loss grew (:data:`compensation.experiments.jobs.DIVERGED_RATIO`) or is not
 finite."""
 BREAK_GAIN_DB = 1.0
 """A method breaks where its closed-loop PSNR gain over uncompensated falls below this (dB)."""

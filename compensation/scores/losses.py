@@ -2,7 +2,7 @@
 
 Every loss takes two tensors (N, 3, H, W), float in [0, 1], and returns a differentiable scalar
 tensor averaged over the batch. The SSIM terms use the metric's own SSIM in the official code's
-convention (:func:`compensation.evaluation.metrics.structural_similarity`: 11×11 Gaussian window,
+convention (:func:`compensation.scores.metrics.structural_similarity`: 11×11 Gaussian window,
 σ = 1.5, data range 1, each image's border replicated by 5 pixels). :data:`LOSSES` maps the names
 accepted by the training configuration to the functions; :func:`get_loss` looks one up.
 """
@@ -14,7 +14,7 @@ from typing import Callable
 import torch.nn.functional as F
 from torch import Tensor
 
-from compensation.evaluation.metrics import structural_similarity
+from compensation.scores.metrics import structural_similarity
 
 
 def l1(pred: Tensor, target: Tensor) -> Tensor:

@@ -20,7 +20,7 @@ from compensation.methods import METHODS
 from sim.io import atomic_write, write_json, write_text
 
 if TYPE_CHECKING:
-    from compensation.evaluation.bench import BenchConfig
+    from compensation.experiments.bench import BenchConfig
 
 METRICS = ("psnr", "rmse", "ssim", "deltaE")
 """Surrogate metrics, in table order."""

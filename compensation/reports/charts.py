@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from compensation.evaluation.summary import is_finite, order_key, closed_loop_gain, n_train_follows
+from compensation.reports.summary import is_finite, order_key, closed_loop_gain, n_train_follows
 from sim.io import atomic_write
 
 PANELS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("deltae", "ΔE (CIEDE2000)"))
@@ -56,7 +56,7 @@ def axis_positions(values: list, listed: list) -> tuple[dict, bool]:
 
 def study_lines(summary: list[dict], key: str, listed: list, score: str) -> dict[tuple, dict]:
     """One line per (method, n_train): ``x`` (axis positions), ``value`` (axis values), ``mean``,
-    ``std`` of ``score`` (a :data:`~compensation.evaluation.summary.SCORES` name), in axis order.
+    ``std`` of ``score`` (a :data:`~compensation.reports.summary.SCORES` name), in axis order.
     Where the factor sets the training size, one line per method (n_train ``""``).
 
     >>> s = [{"point": p, "f": v, "method": "tps", "n_train": 8, "cl_psnr_mean": m, "cl_psnr_std": 0.5}
@@ -100,7 +100,7 @@ def baseline_line(summary: list[dict], key: str, listed: list, score: str) -> tu
 def speed_points(summary: list[dict]) -> list[dict]:
     """Speed and accuracy of every (method, n_train), averaged over the folder's points: ``fit_s``,
     ``infer_ms`` (per frame), ``psnr`` and ``score`` (``closed loop`` where scored, else
-    ``surrogate``, as :func:`~compensation.evaluation.summary.closed_loop_gain`).
+    ``surrogate``, as :func:`~compensation.reports.summary.closed_loop_gain`).
 
     >>> s = [{"method": "tps", "n_train": 8, "fit_s_mean": f, "infer_ms_mean": 2.0,
     ...       "cl_psnr_mean": p, "cl_unc_psnr_mean": 10.0} for f, p in ((1.0, 20.0), (3.0, 22.0))]
@@ -176,9 +176,9 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
     Parameters
     ----------
     summary, breaks, fails : list of dict
-        The rows of :func:`~compensation.evaluation.summary.summarize`,
-        :func:`~compensation.evaluation.summary.breakpoints` and
-        :func:`~compensation.evaluation.summary.failures` for the points drawn.
+        The rows of :func:`~compensation.reports.summary.summarize`,
+        :func:`~compensation.reports.summary.breakpoints` and
+        :func:`~compensation.reports.summary.failures` for the points drawn.
     axis : dict
         The study's first axis (``key``, ``values``, optional ``label`` and ``unit``).
     """

@@ -25,9 +25,9 @@ import numpy as np
 import torch
 
 from compensation.data import load_setup_data, surface_path, to_tensor
-from compensation.evaluation.metrics import evaluate
-from compensation.methods import get_method
+from compensation.methods import check_config, get_method
 from compensation.methods.base import Method, load_state, resolve_device
+from compensation.scores.metrics import evaluate
 from compensation.training.config import TrainConfig
 from sim.errors import DatasetError, ProcamError
 from sim.io import atomic_write, read_json, read_png, to_uint8, write_json, write_png
@@ -35,7 +35,7 @@ from sim.io import atomic_write, read_json, read_png, to_uint8, write_json, writ
 CHECKPOINT_FILE = "checkpoint.pt"
 """Training state of an unfinished run, inside its :func:`partial_dir`."""
 SCORES = ("psnr", "rmse", "ssim", "deltaE")
-"""The scores ``metrics.json`` records (of :func:`~compensation.evaluation.metrics.evaluate`)."""
+"""The scores ``metrics.json`` records (of :func:`~compensation.scores.metrics.evaluate`)."""
 SSIM_CONVENTION = "official"
 """The SSIM convention of ``metrics.json`` (recorded there as ``ssim_convention``)."""
 
@@ -185,6 +185,7 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
         or training is interrupted (its state is kept for a resume).
     """
     setup_dir, out_dir = Path(setup_dir), Path(out_dir)
+    check_config(cfg)
     _check_out_dir(out_dir, overwrite)
     device = resolve_device(cfg.device)
     data = load_setup_data(setup_dir, cfg.n_train, cfg.n_test)
@@ -211,13 +212,13 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
     metrics = {"method": cfg.method, "setup": data.name,
                **{k: float(scores[k]) for k in SCORES}, "ssim_convention": SSIM_CONVENTION,
                "uncompensated": {k: float(plain[k]) for k in SCORES},
-               "train_seconds": round(stats["seconds"], 3),
-               "samples_per_second": round(stats["samples_per_second"], 3),
-               "final_loss": stats["final_loss"], "n_train": len(data.train),
+               "train_seconds": round(stats.seconds, 3),
+               "samples_per_second": round(stats.samples_per_second, 3),
+               "final_loss": stats.final_loss, "n_train": len(data.train),
                "n_test": len(data.test), "iters": getattr(cfg.options, "iters", 1),
-               "batch": stats["batch"]}
+               "batch": stats.batch}
     try:
-        _write_loss(partial, stats["loss_curve"], f"{cfg.method} on {data.name}")
+        _write_loss(partial, stats.loss_curve, f"{cfg.method} on {data.name}")
         method.save(partial)
         write_png(partial / "examples.png", example_grid(data.surface, data.test.captures, predicted,
                                                          data.test.frames))

@@ -1,7 +1,7 @@
 """The jobs a study or benchmark is made of, and the records of its folder.
 
 Each job is a module-level function of one frozen dataclass, so that any executor of
-:mod:`compensation.executors` runs it, in this process or on another machine sharing the folder:
+:mod:`compensation.experiments.executors` runs it, in this process or on another machine sharing the folder:
 
 - :func:`render` (:class:`RenderJob`): one setup into the dataset root;
 - :func:`fit` (:class:`FitJob`): train one method, or reuse a finished run of exactly the same
@@ -32,11 +32,11 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from compensation.data import load_setup_data
-from compensation.evaluation.closed_loop import CAPTURES_DIR, N_CAPTURES
-from compensation.evaluation.metrics import evaluate
-from compensation.evaluation.official import official_complete, official_tag, write_official_outputs
+from compensation.experiments.closed_loop import CAPTURES_DIR, N_CAPTURES
+from compensation.scores.metrics import evaluate
+from compensation.experiments.official import official_complete, official_tag, write_official_outputs
 from compensation.training.config import TrainConfig
-from compensation.training.runs import load_run, package_version, scores_are_current, train_run
+from compensation.experiments.runs import load_run, package_version, scores_are_current, train_run
 from sim.dataset import FrameSpec, image_name, write_setup
 from sim.errors import ProcamError
 from sim.io import atomic_write, read_json, to_uint8, write_json, write_png
@@ -45,7 +45,7 @@ from sim.setup import Setup
 DIVERGED_RATIO = 1.5
 """A run whose last logged training loss exceeds this multiple of its first has diverged."""
 SCORES = ("psnr", "rmse", "ssim", "deltaE")
-"""Scores of a run (:func:`~compensation.evaluation.metrics.evaluate`), in column order."""
+"""Scores of a run (:func:`~compensation.scores.metrics.evaluate`), in column order."""
 
 
 def _column(score: str) -> str:
@@ -103,7 +103,7 @@ class FitJob:
         Also project its compensation back through the setup (simulated setups only: those with a
         ``setup.toml``) and save the first :data:`N_CAPTURES` captures.
     official : Path or None
-        Write the official code's outputs under this folder (:mod:`~compensation.evaluation.official`).
+        Write the official code's outputs under this folder (:mod:`~compensation.experiments.official`).
     pretrained : bool
         The run starts from a pre-trained one (its official tag says so).
     """
@@ -120,7 +120,7 @@ class FitJob:
 def reusable(run_dir: Path, train_cfg: TrainConfig, setup_dir: Path) -> dict | None:
     """The metrics of a finished run made with exactly ``train_cfg`` (device aside) on the dataset
     ``setup_dir`` by this procam version and scored with today's metrics
-    (:func:`~compensation.training.runs.scores_are_current`), else None."""
+    (:func:`~compensation.experiments.runs.scores_are_current`), else None."""
     if not (run_dir / "metrics.json").exists():
         return None
     try:
@@ -151,10 +151,10 @@ def _closed_loop_done(run_dir: Path, metrics: dict) -> bool:
 
 def add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:
     """Score a finished run in closed loop: ``closed_loop`` added to its ``metrics.json`` (scores
-    of :func:`~compensation.evaluation.closed_loop.closed_loop` and ``seconds``), the captures of
+    of :func:`~compensation.experiments.closed_loop.closed_loop` and ``seconds``), the captures of
     the first :data:`N_CAPTURES` test images written to ``run_dir/closed_loop/img_XXXX.png``
     (canonical view). Returns the metrics."""
-    from compensation.evaluation.closed_loop import closed_loop, simulator_for, write_captures
+    from compensation.experiments.closed_loop import closed_loop, simulator_for, write_captures
 
     method, _ = load_run(run_dir)
     data = load_setup_data(setup_dir, n_train=1, n_test=n_test)
@@ -220,7 +220,7 @@ def _baseline_key(job: BaselineJob, closed: bool) -> dict:
 def baselines(job: BaselineJob) -> dict:
     """Run a :class:`BaselineJob`; returns ``uncompensated`` (scores of the test captures x̃
     against y, with ``closed_loop`` scores of y projected as is when simulated), ``oracle`` (the
-    rows of :func:`~compensation.evaluation.closed_loop.iterative_refinement`, or None) and
+    rows of :func:`~compensation.experiments.closed_loop.iterative_refinement`, or None) and
     ``size`` ([height, width])."""
     setup_dir = Path(job.setup_dir)
     closed = job.closed_loop and simulated(setup_dir)
@@ -236,7 +236,7 @@ def baselines(job: BaselineJob) -> dict:
     captures, y = data.test.captures, data.test.frames
     scores, oracle = evaluate(captures, y), None
     if closed:
-        from compensation.evaluation.closed_loop import (closed_loop_scores, iterative_refinement,
+        from compensation.experiments.closed_loop import (closed_loop_scores, iterative_refinement,
                                                          reachable_mask, reachable_overlay, simulator_for)
 
         mask = reachable_mask(data, y)
@@ -263,7 +263,7 @@ def _loss_grew(run_dir: Path) -> bool:
 
 
 def run_status(metrics: dict, run_dir: Path) -> tuple[str, str]:
-    """The ``status`` of a finished run (:data:`~compensation.evaluation.summary.STATUSES`, never
+    """The ``status`` of a finished run (:data:`~compensation.reports.summary.STATUSES`, never
     ``failed``) and why."""
     loss = metrics.get("final_loss")
     if loss is not None and not math.isfinite(loss):
@@ -285,7 +285,7 @@ def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
     Parameters
     ----------
     fitted : dict
-        The :func:`~compensation.executors.attempt` record of its :func:`fit` job, or of the job
+        The :func:`~compensation.experiments.executors.attempt` record of its :func:`fit` job, or of the job
         that kept it from running (``error`` then names that one).
     base : dict or None
         The record of its setup's :func:`baselines` job (None: not run).
@@ -363,10 +363,10 @@ def write_study_record(out: Path, record: dict) -> Path:
 
 
 def tasks(fn, jobs: Sequence, gpus: float) -> list:
-    """One :class:`~compensation.executors.Task` per job: one CPU core each, and one GPU where the
+    """One :class:`~compensation.experiments.executors.Task` per job: one CPU core each, and one GPU where the
     machine or cluster has GPUs (``gpus``) and the job uses them: a render or a baseline (Mitsuba's
     CUDA variant is chosen when a GPU is present) or a fit whose device is ``auto`` or ``cuda[:N]``."""
-    from compensation.executors import Task
+    from compensation.experiments.executors import Task
 
     def needs_gpu(job) -> bool:
         wanted = job.cfg.device if isinstance(job, FitJob) else "auto"

@@ -12,7 +12,7 @@ from pathlib import Path
 from compensation.data import SetupData
 from compensation.methods import get_method
 from compensation.training.config import TrainConfig
-from compensation.training.runs import load_run
+from compensation.experiments.runs import load_run
 from sim.dataset import image_name
 from sim.io import to_uint8, write_png
 
@@ -26,7 +26,7 @@ def official_tag(cfg: TrainConfig, pretrained: bool = False) -> str:
 
     Examples
     --------
-    >>> from compensation.training.config import make_config
+    >>> from compensation.methods import make_config
     >>> official_tag(make_config("paper", "compennet"))
     'CompenNet_l1+ssim_500_64_1000'
     >>> official_tag(make_config("quick", "tps-textured", n_train=125))

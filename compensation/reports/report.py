@@ -3,7 +3,7 @@
 The page holds, in order: the question and each method's break point, a figure grid in the style of
 the CompenNet paper's Fig. 4 (rows: test images; columns: surface s̃, uncompensated capture, each
 method's closed-loop capture, desired image; two zoomed patches under each), every chart of
-:mod:`~compensation.evaluation.charts`, the tables (a bench's Tables 1-3 with the paper's columns,
+:mod:`~compensation.reports.charts`, the tables (a bench's Tables 1-3 with the paper's columns,
 the summary), the failures, and the provenance (setup files, seeds, versions, timings). Images are
 inlined as base64 ``data:`` URIs and the style sheet is inline: the page needs no network and no
 other file. It is written atomically to ``DIR/report.html``, beside the files it is made from:
@@ -26,9 +26,9 @@ import cv2
 import numpy as np
 
 from compensation.data import frames_root, surface_path
-from compensation.evaluation import charts as ch
-from compensation.evaluation.closed_loop import CAPTURES_DIR
-from compensation.evaluation.summary import (is_finite, cell_text, order_key, axis_keys, break_columns,
+from compensation.reports import charts as ch
+from compensation.experiments.closed_loop import CAPTURES_DIR
+from compensation.reports.summary import (is_finite, cell_text, order_key, axis_keys, break_columns,
                                              breakpoints, failure_columns, failures, read_results,
                                              main_rows, read_study, summarize,
                                              write_summaries)
@@ -324,7 +324,7 @@ def html_table(columns: list[str], rows: list[list]) -> str:
 
 
 def markdown_html(text: str) -> str:
-    """A Markdown file of :mod:`~compensation.evaluation.tables` (a ``#`` title, one pipe table,
+    """A Markdown file of :mod:`~compensation.reports.tables` (a ``#`` title, one pipe table,
     notes) as HTML.
 
     >>> markdown_html("# T\\n\\n| a | b |\\n|---|---|\\n| x | 1 |\\n\\nnote")

@@ -39,7 +39,7 @@ spread over seeds is the methods' own. With ``render_seeds = true`` the seed als
 ``render.seed`` (the Mitsuba sampler and the camera noise: base seed + seed) and each seed gets
 its own dataset, so the spread includes the capture noise.
 
-:func:`run_study` expands a study into jobs (:mod:`compensation.evaluation.jobs`): render each
+:func:`run_study` expands a study into jobs (:mod:`compensation.experiments.jobs`): render each
 setup ``<base>__<section>-<key>-<value>`` into ``DIR/data``, fit each method per seed into
 ``DIR/runs/<setup>/<method>-n<n_train>-seed<seed>[-<option><value>]``, score it on held-out pairs and
 in closed loop, and score each setup's baselines; then writes ``DIR/study.json`` and
@@ -54,11 +54,11 @@ import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from compensation.evaluation.jobs import (BaselineJob, FitJob, RenderJob, baselines, fit, render,
+from compensation.experiments.jobs import (BaselineJob, FitJob, RenderJob, baselines, fit, render,
                                           result_row, tasks, write_results, write_study_record)
-from compensation.executors import LocalExecutor
-from compensation.methods import get_method
-from compensation.training.config import COMMON, PROFILES, TrainConfig, applicable, make_config, option_owners
+from compensation.experiments.executors import LocalExecutor
+from compensation.methods import applicable, get_method, make_config, option_owners
+from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
 from sim.errors import ProcamError
 from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
