@@ -158,3 +158,23 @@ def test_sources_cite_no_outside_documents(package):
             for i, line in enumerate(path.read_text().splitlines(), start=1)
             if OUTSIDE_DOCUMENTS.search(line)]
     assert not hits, "cites documents outside the repository:\n" + "\n".join(hits)
+
+
+FLOORS = {"compensation.scores": 1, "compensation.data": 2, "compensation.training": 3,
+          "compensation.methods": 4, "compensation.experiments": 5, "compensation.reports": 6,
+          "compensation.demo": 7, "compensation.cli": 8}
+"""The floors of ``compensation`` (docs/architecture.md): a module imports only from its own floor
+or below."""
+
+
+def _floor(module: str) -> int | None:
+    return next((floor for prefix, floor in FLOORS.items()
+                 if module == prefix or module.startswith(prefix + ".")), None)
+
+
+def test_compensation_imports_only_from_its_floor_or_below():
+    graph = import_graph()
+    floors = {m: _floor(m) for m in graph if m.startswith("compensation.")}
+    assert None not in floors.values(), f"modules on no floor: {[m for m, f in floors.items() if f is None]}"
+    upward = sorted(f"{a} -> {b}" for a in floors for b in graph[a] if b in floors and floors[b] > floors[a])
+    assert not upward, "imports from a floor above: " + ", ".join(upward)
