@@ -124,11 +124,11 @@ else:
 def late():
     from sim.errors import ProcamError
 """
-    assert imports_of("compensation.experiments.runs", source, modules) == {
+    assert imports_of("compensation.training.made_up", source, modules) == {
         "sim.io", "compensation.methods.base", "compensation.methods", "compensation.training.config",
         "compensation.training.loop", "sim.errors"}
     typing_only = "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import sim.io\n"
-    assert imports_of("compensation.experiments.runs", typing_only, modules) == set()
+    assert imports_of("compensation.training.made_up", typing_only, modules) == set()
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set(), "c": {"a", "b"}}) is None
 
