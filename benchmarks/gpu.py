@@ -80,10 +80,10 @@ def bench_training(args: argparse.Namespace) -> dict:
     sync(device)
     predict = time.perf_counter() - start
     mse = torch.mean((pred - data.test.frames) ** 2).item()
-    out = {"size": args.size, "pairs": args.pairs, "iters": args.iters, "batch": fit["batch"],
+    out = {"size": args.size, "pairs": args.pairs, "iters": args.iters, "batch": fit.batch,
            "amp": bool(args.amp and device.type == "cuda"), "fit_seconds": total,
-           "loop_seconds": fit["seconds"], "samples_per_second": fit["samples_per_second"],
-           "final_loss": fit["final_loss"], "predict_seconds": predict,
+           "loop_seconds": fit.seconds, "samples_per_second": fit.samples_per_second,
+           "final_loss": fit.final_loss, "predict_seconds": predict,
            "train_psnr_db": 10 * np.log10(1 / max(mse, 1e-12))}
     if device.type == "cuda":
         out["peak_memory_gib"] = torch.cuda.max_memory_allocated(device) / 2**30

@@ -80,7 +80,7 @@ def main() -> None:
             fit = method.fit(data, cfg, progress=False)
             scores = evaluate(method.predict(data.test.captures, data.surface), data.test.frames)
             rows.append({"patch": patch, "batch": batch, "iters": iters, "seed": seed,
-                         "train_seconds": round(fit["seconds"], 2), "psnr": round(scores["psnr"], 3),
+                         "train_seconds": round(fit.seconds, 2), "psnr": round(scores["psnr"], 3),
                          "ssim": round(scores["ssim"], 4), "uncompensated_psnr": round(base["psnr"], 3)})
             print(rows[-1], flush=True)
     with open(out / "patches.csv", "w", newline="") as f:

@@ -276,6 +276,7 @@ def _executor(args: argparse.Namespace):
 
 def cmd_bench(args: argparse.Namespace) -> None:
     from compensation.experiments.bench import BenchConfig, run_bench
+    from compensation.reports.tables import write_tables
 
     options = _given_options(args)
     n_test = options.pop("n_test", None)
@@ -290,9 +291,10 @@ def cmd_bench(args: argparse.Namespace) -> None:
     suite = select_setups(load_setups(args.suite), args.only, args.suite) if args.suite else None
     white = load_setups(args.white)[0] if suite and "2" in cfg.tables else None
     executor = _executor(args)
-    files = run_bench(suite, Path(args.out), cfg, Path(args.data) if args.data else None, white,
-                      progress=not args.quiet and executor.name == "local", limit=args.limit,
-                      executor=executor)
+    result = run_bench(suite, Path(args.out), cfg, Path(args.data) if args.data else None, white,
+                       progress=not args.quiet and executor.name == "local", limit=args.limit,
+                       executor=executor)
+    files = write_tables(Path(args.out), cfg, result)
     for name, path in files.items():
         print(f"procam: {name} -> {path}")
     for name in ("table1", "table2", "table3"):

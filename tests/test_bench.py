@@ -13,6 +13,7 @@ import pytest
 
 from conftest import tiny_toml
 from compensation.cli import main
+from compensation.experiments.plans import slug
 from compensation.methods import METHODS
 
 SUITE = """
@@ -94,7 +95,7 @@ def test_tables_and_their_rows(bench):
     assert all(float(r["deltaE"]) > 0 and float(r["CL deltaE"]) > 0 for r in t1[:1 + 2 * len(methods)])
     assert "Closed loop left out" not in (out / "table1.md").read_text()  # every setup is simulated
     # the official code's outputs, per setup and run, under the bench's own folder; Table 3's l1+ssim
-    # run is Table 1's compennet-n8 (one configuration, one tag)
+    # run is Table 1's compennet-n8-seed0 (one configuration, one tag)
     for s in ("s1", "s2"):
         for kind in ("cam", "prj"):
             tags = {p.name for p in (out / "official" / s / kind / "cmp").iterdir()}
@@ -109,12 +110,12 @@ def test_runs_take_the_options_of_their_method(bench):
     def train(setup: str, run: str) -> dict:
         return json.loads((runs / setup / run / "config.json").read_text())["train"]
 
-    assert train("s1", "compennet-n4")["options"]["iters"] == 3
-    assert train("s1", "compennet-n4")["options"]["batch"] == 2
-    assert set(train("s1", "tps-n8")["options"]) == {"smoothing", "workers"}  # --iters is not tps's
+    assert train("s1", "compennet-n4-seed0")["options"]["iters"] == 3
+    assert train("s1", "compennet-n4-seed0")["options"]["batch"] == 2
+    assert set(train("s1", "tps-n8-seed0")["options"]) == {"smoothing", "workers"}  # --iters is not tps's
     for loss in ("l1", "l2", "ssim", "l1+ssim"):
-        assert train("s2", f"compennet-n8-{loss}")["options"]["loss"] == loss
-    pretrained = train("s1", "compennet-n32-pretrained-iters500-batch32")
+        assert train("s2", f"compennet-n8-seed0-loss{slug(loss)}")["options"]["loss"] == loss
+    pretrained = train("s1", "compennet-n32-seed0-iters500-batch32-initpretrained")
     assert pretrained["options"]["init"] == str((runs / "white" / "compennet-pretrain").resolve())
     assert (pretrained["n_train"], pretrained["options"]["iters"]) == (32, 3)  # the user's --iters wins
 
@@ -149,7 +150,7 @@ def test_report_of_the_closed_loop_bench(bench, capsys):
     """Each closed-loop run keeps the captures of its first test images; `procam report` reads the
     bench folder (Table 1 with the paper's column, the speed chart, the figure grid)."""
     out = bench / "bench"
-    for run in out.glob("runs/s*/*-n[48]"):
+    for run in out.glob("runs/s*/*-n[48]-seed0"):
         assert sorted(p.name for p in (run / "closed_loop").glob("*.png")) == ["img_0001.png", "img_0002.png"]
     assert main(["report", str(out)]) == 0
     assert str(out / "report.html") in capsys.readouterr().out
@@ -188,9 +189,9 @@ def test_resume_trains_nothing_and_failures_are_isolated(bench, monkeypatch):
     # Another --iters changes the network runs' configuration only: those are trained again, the
     # tps runs (which do not take iters) are reused.
     changed = [a if a != "3" else "4" for a in ARGS]
-    stamps = {p: p.stat().st_mtime_ns for p in runs.glob("s*/*-n[48]/metrics.json")}
+    stamps = {p: p.stat().st_mtime_ns for p in runs.glob("s*/*-n[48]-seed0/metrics.json")}
     assert _bench(bench, "--tables", "1", methods="compennet,tps", args=changed) == 0
     retrained = {p.parent.name for p, t in stamps.items() if p.stat().st_mtime_ns != t}
-    assert retrained == {"compennet-n4", "compennet-n8"}
-    config = json.loads((runs / "s2" / "compennet-n8" / "config.json").read_text())
+    assert retrained == {"compennet-n4-seed0", "compennet-n8-seed0"}
+    config = json.loads((runs / "s2" / "compennet-n8-seed0" / "config.json").read_text())
     assert config["train"]["options"]["iters"] == 4

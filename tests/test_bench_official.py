@@ -67,7 +67,7 @@ def test_official_outputs(bench):
     """π†(x̃) of the test captures in cam/cmp/<tag>, π†(y) of the test images in prj/cmp/<tag>."""
     out = bench / "out"
     data = load_setup_data(bench / "root" / SETUPS[0], n_train=1, n_test=2)
-    method, _ = load_run(out / "runs" / SETUPS[0] / "compennet-n8")
+    method, _ = load_run(out / "runs" / SETUPS[0] / "compennet-n8-seed0")
     for kind, inputs in (("cam", data.test.captures), ("prj", data.test.frames)):
         folder = out / "official" / SETUPS[0] / kind / "cmp" / "CompenNet_l1+ssim_8_2_2"
         assert sorted(os.listdir(folder)) == ["img_0001.png", "img_0002.png"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 import pytest
 
 import compensation.experiments.bench
+import compensation.reports.tables
 from compensation.cli import main
 from sim.setup import load_setups
 
@@ -64,9 +65,10 @@ def test_only_selects_the_bench_setups(suite, tmp_path, monkeypatch):
 
     def fake_run_bench(setups, out, cfg, data_root, white, progress, limit, executor=None):
         seen["names"], seen["limit"] = [s.name for s in setups], limit
-        return {}
+        return None
 
     monkeypatch.setattr(compensation.experiments.bench, "run_bench", fake_run_bench)
+    monkeypatch.setattr(compensation.reports.tables, "write_tables", lambda out, cfg, result: {})
     assert main(["bench", str(suite), "--only", "gamma,beta", "--out", str(tmp_path / "b"),
                  "--tables", "1", "--quiet"]) == 0
     assert seen == {"names": ["beta", "gamma"], "limit": None}

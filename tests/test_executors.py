@@ -10,6 +10,7 @@ import pytest
 from conftest import tiny_toml
 from compensation.experiments.bench import BenchConfig, run_bench
 from compensation.experiments.executors import LocalExecutor, Task, attempt, make_executor
+from compensation.reports.tables import write_tables
 from sim.errors import ProcamError
 from sim.setup import load_suite
 
@@ -61,14 +62,16 @@ def test_ray_bench_equals_local(tmp_path):
     suite = load_suite(tmp_path / "suite.toml")
     cfg = BenchConfig(methods=("tps", "nayar"), sizes=(4,), tables=("1",), size=32, n_test=2,
                       closed_loop=True)
-    run_bench(suite, tmp_path / "local", cfg, progress=False, executor=LocalExecutor())
+    write_tables(tmp_path / "local", cfg, run_bench(suite, tmp_path / "local", cfg, progress=False,
+                                                    executor=LocalExecutor()))
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         executor = RayExecutor()  # joins the instance started here
         run_bench(suite, tmp_path / "ray", cfg, progress=False, executor=executor)
         assert ray.cluster_resources()["CPU"] == 2
         stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / "ray").rglob("metrics.json")}
-        run_bench(suite, tmp_path / "ray", cfg, progress=False, executor=executor)  # a new driver's run
+        result = run_bench(suite, tmp_path / "ray", cfg, progress=False, executor=executor)  # a new driver's run
+        write_tables(tmp_path / "ray", cfg, result)
         assert {p: p.stat().st_mtime_ns for p in (tmp_path / "ray").rglob("metrics.json")} == stamps
     finally:
         ray.shutdown()

@@ -155,7 +155,7 @@ def test_killed_bench_resumes_to_the_same_table(tmp_path):
     whole = _bench(tmp_path, "whole")
     assert whole.wait() == 0, whole.communicate()
     proc = _bench(tmp_path, "killed")
-    checkpoint = partial_dir(tmp_path / "killed" / "runs" / "tinybench" / "compennet-n8") / "checkpoint.pt"
+    checkpoint = partial_dir(tmp_path / "killed" / "runs" / "tinybench" / "compennet-n8-seed0") / "checkpoint.pt"
     end = time.monotonic() + 300
     while not checkpoint.exists():
         assert proc.poll() is None and time.monotonic() < end, proc.communicate()
@@ -165,12 +165,13 @@ def test_killed_bench_resumes_to_the_same_table(tmp_path):
     resumed = _bench(tmp_path, "killed")
     assert resumed.wait() == 0, resumed.communicate()
     assert _scores(tmp_path / "whole" / "table1.md") == _scores(tmp_path / "killed" / "table1.md")
-    # another --seed is another run: nothing stale is reused under the new label
-    before = json.loads((tmp_path / "killed" / "runs" / "tinybench" / "compennet-n8" / "config.json").read_text())
+    # another --seed is another run, in a folder of its own: nothing stale is reused
     reseeded = _bench(tmp_path, "killed", "--seed", "1")
     assert reseeded.wait() == 0, reseeded.communicate()
-    after = json.loads((tmp_path / "killed" / "runs" / "tinybench" / "compennet-n8" / "config.json").read_text())
-    assert (before["train"]["seed"], after["train"]["seed"]) == (0, 1)
+    runs = tmp_path / "killed" / "runs" / "tinybench"
+    seeds = [json.loads((runs / f"compennet-n8-seed{s}" / "config.json").read_text())["train"]["seed"]
+             for s in (0, 1)]
+    assert seeds == [0, 1]
     shutil.rmtree(tmp_path / "data")
 
 

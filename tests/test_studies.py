@@ -85,7 +85,7 @@ def test_overrides_and_only():
     small = with_overrides(study, size=(32, 32), n_train=(8, 16), n_test=4, iters=5, seeds=1,
                            methods=("tps", "compennet"))
     plan = expand(small)
-    assert [p.values for p in plan.points] == [(8,), (16,)]
+    assert [p.values for p in plan.points] == [{"n_train": 8}, {"n_train": 16}]
     assert {(r.method, r.n_train, r.seed) for r in plan.runs} == {
         (m, n, 0) for m in ("tps", "compennet") for n in (8, 16)}
     assert all(r.cfg.n_test == 4 for r in plan.runs)

@@ -91,7 +91,7 @@ def test_training_equals_the_naive_loop(data):
     method = get_method("compennet")(device="cpu")
     result = method.fit(data, cfg, progress=False)
     losses, weights = naive_training(data, opt, seed=3)
-    ours = [loss for _, loss, _ in result["loss_curve"]]
+    ours = [loss for _, loss, _ in result.loss_curve]
     assert losses[-1] < losses[0] - 0.05  # it trains: a wrong surface or loss would not match below
     # the forward pass and the first update agree to float rounding; later Adam amplifies rounding
     # (see below), which depends on the convolution kernels oneDNN picks for the machine: on an
@@ -182,5 +182,5 @@ def test_patch_training_resumes_bit_identically(data, tmp_path):
     straight, weights = fit(6)
     fit(3, tmp_path / "state.pt")  # stops after 3 iterations, its state saved
     resumed, resumed_weights = fit(6, tmp_path / "state.pt")
-    assert resumed["loss_curve"] == straight["loss_curve"]
+    assert resumed.loss_curve == straight.loss_curve
     assert all(torch.equal(resumed_weights[k], v) for k, v in weights.items())

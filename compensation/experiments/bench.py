@@ -25,13 +25,12 @@ folder holds the same ``study.json`` (kind ``bench``) and ``results.csv`` as a s
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from compensation.experiments.jobs import (BaselineJob, FitJob, RenderJob, baselines, fit, render,
-                                          result_row, simulated, tasks, write_results, write_study_record)
-from compensation.reports.tables import LOSSES, TABLE2, write_tables
 from compensation.experiments.executors import LocalExecutor
+from compensation.experiments.jobs import simulated, write_results, write_study_record
+from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name
 from compensation.methods import applicable, get_method, make_config
 from compensation.training.config import COMMON, PROFILES
 from sim.dataset import FrameSpec
@@ -88,49 +87,63 @@ class BenchConfig:
         return self.n_test or PROFILES[self.profile]["n_test"]
 
 
-@dataclass(frozen=True)
-class Job:
-    """One training run of the benchmark."""
-
-    table: str
-    setup: str
-    method: str
-    n_train: int
-    loss: str | None = None
-    init: str | None = None
-    extra: tuple = ()
-
-    @property
-    def run_name(self) -> str:
-        tag = f"{self.method}-n{self.n_train}" + (f"-{self.loss}" if self.loss else "")
-        tag += "-pretrained" if self.init else ""
-        return tag + "".join(f"-{k}{v}" for k, v in self.extra)
-
-
-def _jobs(cfg: BenchConfig, setups: list[str], pretrain_run: Path | None) -> list[Job]:
-    jobs = []
-    if "1" in cfg.tables:
-        jobs += [Job("1", s, m, n) for s in setups for m in cfg.methods for n in cfg.sizes]
-    if "2" in cfg.tables:
-        extra = tuple((k, v) for k, v in TABLE2.items() if k != "n_train")
-        for s in setups:
-            jobs.append(Job("2", s, "compennet", TABLE2["n_train"], extra=extra))
-            if pretrain_run is not None:
-                jobs.append(Job("2", s, "compennet", TABLE2["n_train"], init=str(pretrain_run),
-                                extra=extra))
-    if "3" in cfg.tables:
-        jobs += [Job("3", s, "compennet", max(cfg.sizes), loss) for s in setups for loss in LOSSES]
-    return jobs
+LOSSES = ("l1", "l2", "ssim", "l1+ssim")
+"""The training losses Table 3 compares."""
+TABLE2 = dict(n_train=32, iters=500, batch=32)
+"""The paper's fine-tuning setting for Table 2."""
+PRETRAIN = "compennet-pretrain"
+"""Run folder name of Table 2's pre-training on the white setup."""
 
 
 def _train_config(cfg: BenchConfig, method: str, n_train: int, **job_values):
-    """The run configuration of one job: the user's options that ``method`` takes, then the job's
+    """The run configuration of one run: the user's options that ``method`` takes, then the run's
     own values. The user's word wins over a table's iterations and batch; the loss and
-    initialisation that a table compares are the job's."""
+    initialisation that a table compares are the run's."""
     values = applicable(method, cfg.overrides)
     values.update({k: v for k, v in job_values.items()
                    if v is not None and (k in ("loss", "init") or k not in cfg.overrides)})
     return make_config(cfg.profile, method, **{**values, "n_train": n_train, "n_test": cfg.tests})
+
+
+def bench_plan(cfg: BenchConfig, out: Path, suite: list | None, setups: list[str], white=None) -> Plan:
+    """The runs of the bench's tables on ``setups`` (one point): Table 1's methods × sizes,
+    Table 2's He-initialised and pre-trained CompenNet (the pre-training on ``white`` first, run
+    folder ``runs/<white>/compennet-pretrain``), Table 3's losses. Each run is labelled with its
+    ``table`` and ``variant`` (the run folder's name)."""
+    seed = cfg.overrides.get("seed", 0)
+    point = Point(0)
+    runs: list[Run] = []
+
+    def add(table: str, setup: str, method: str, n: int, varied: dict, after: str | None = None):
+        name = run_name(method, n, seed, {**varied, **({"init": "pretrained"} if after else {})})
+        train_cfg = _train_config(cfg, method, n, **varied,
+                                  init=str((Path(out) / after).resolve()) if after else None)
+        runs.append(Run(point, setup, method, n, seed, train_cfg, f"runs/{setup}/{name}",
+                        {"table": table, "variant": name}, after))
+
+    if "1" in cfg.tables:
+        for s in setups:
+            for m in cfg.methods:
+                for n in cfg.sizes:
+                    add("1", s, m, n, {})
+    if "2" in cfg.tables:
+        extra = {k: v for k, v in TABLE2.items() if k != "n_train"}
+        pretrain = None
+        if white is not None:
+            pretrain = f"runs/{white.name}/{PRETRAIN}"
+            runs.append(Run(point, white.name, "compennet", max(cfg.sizes), seed,
+                            _train_config(cfg, "compennet", max(cfg.sizes)), pretrain,
+                            {"table": "pretrain", "variant": PRETRAIN}, scored=False))
+        for s in setups:
+            add("2", s, "compennet", TABLE2["n_train"], extra)
+            if pretrain is not None:
+                add("2", s, "compennet", TABLE2["n_train"], extra, after=pretrain)
+    if "3" in cfg.tables:
+        for s in setups:
+            for loss in LOSSES:
+                add("3", s, "compennet", max(cfg.sizes), {"loss": loss})
+    to_render = [*(suite or []), *([white] if "2" in cfg.tables and white is not None else [])]
+    return Plan((point,), {s.name: s for s in to_render}, tuple(runs))
 
 
 def found_setups(root: Path) -> list[str]:
@@ -156,15 +169,33 @@ def found_setups(root: Path) -> list[str]:
     return sorted(found)
 
 
+@dataclass(frozen=True)
+class BenchResult:
+    """What a bench measured, as its tables need it (:func:`compensation.reports.tables.write_tables`)."""
+
+    rows: list[dict]
+    """One per finished run: its ``table``, ``setup``, ``method``, ``n_train``, ``loss`` (Table 3),
+    ``init`` (Table 2's pre-trained runs), ``run``, ``official_tag`` and its ``metrics.json``."""
+    failures: list[dict]
+    """One per failed run: the same keys as a row (no metrics), ``error`` and ``traceback``."""
+    uncompensated: dict
+    """Setup name → scores of its test captures (with ``closed_loop`` scores when simulated)."""
+    oracle: dict
+    """Setup name → the iterative-refinement oracle's rows (closed loop, simulated setups)."""
+    image_size: str
+    """The setups' image size for the titles (e.g. ``"64² px"``)."""
+
+
 def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path | None = None,
               white=None, progress: bool = True, limit: int | None = None,
-              executor=None) -> dict[str, Path]:
-    """Run the benchmark and write its tables.
+              executor=None) -> BenchResult:
+    """Run the benchmark: render what is missing, fit and score every run of :func:`bench_plan`.
 
     Resumable: a run whose ``metrics.json`` exists and whose configuration equals the job's is
     reused (:func:`~compensation.experiments.jobs.reusable`); any other run folder is trained
-    again. A failing run is recorded in ``failures.json`` and in ``results.csv`` (status
-    ``failed``) and does not lose the others.
+    again. A failing run is recorded in ``results.csv`` (status ``failed``) and does not lose the
+    others. The tables are written from the result by
+    :func:`compensation.reports.tables.write_tables`.
 
     Parameters
     ----------
@@ -172,9 +203,8 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         The setups (e.g. ``load_suite("scenes/suite.toml")``), rendered into ``data_root`` where
         missing; None: every setup found under ``data_root`` (:func:`found_setups`), as it is.
     out : Path
-        Output folder: ``runs/``, ``official/``, ``table{1,2,3}.{md,csv}``, ``per_setup.csv``,
-        ``failures.json``, ``results.csv`` (point 0, with the ``table`` and ``variant`` (run
-        name) of each row) and ``study.json``.
+        Output folder: ``runs/``, ``official/``, ``baselines/``, ``results.csv`` (point 0, with the
+        ``table`` and ``variant`` (run name) of each row) and ``study.json``.
     cfg : BenchConfig
         What to run.
     data_root : Path, optional
@@ -186,11 +216,6 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         Only the first ``limit`` setups.
     executor : LocalExecutor or RayExecutor, optional
         Where the jobs run (default: in this process, one after the other).
-
-    Returns
-    -------
-    dict
-        Paths of the files written, by name.
 
     Raises
     ------
@@ -211,51 +236,15 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         suite = suite[:limit]
         setups = [s.name for s in suite]
     data_root = Path(data_root or out / "data")
+    plan = bench_plan(cfg, out, suite, setups, white)
     spec = FrameSpec(max(max(cfg.sizes), TABLE2["n_train"]), cfg.tests, (cfg.canonical,) * 2)
-    table2_white = "2" in cfg.tables and white is not None
-    renders = [RenderJob(data_root, s, spec, progress)
-               for s in [*(suite or []), *([white] if table2_white else [])]]
-    gpus = executor.gpus()
-    for job, done in zip(renders, executor.run(tasks(render, renders, gpus))):
-        if not done["ok"]:  # the bench's setups are all needed: a refused render stops it
-            raise ProcamError(f"render {job.setup.name}: {done['error']}")
-    pretrain, pretrain_error = None, None
-    if table2_white:
-        pretrain = out / "runs" / white.name / "compennet-pretrain"
-        pre_job = FitJob(data_root / white.name, _train_config(cfg, "compennet", max(cfg.sizes)), pretrain,
-                         closed_loop=False, progress=progress)
-        done = executor.run(tasks(fit, [pre_job], gpus))[0]
-        pretrain_error = None if done["ok"] else f"pre-training on {white.name} failed: {done['error']}"
-
-    bench_jobs = _jobs(cfg, setups, pretrain)
-    fits = []
-    for job in bench_jobs:
-        job_values = dict(job.extra, loss=job.loss, init=str(Path(job.init).resolve()) if job.init else None)
-        fits.append(FitJob(data_root / job.setup, _train_config(cfg, job.method, job.n_train, **job_values),
-                           out / "runs" / job.setup / job.run_name, closed_loop=cfg.closed_loop,
-                           official=out / "official" / job.setup, pretrained=job.init is not None,
-                           progress=progress))
-    masks = out / "reachable" if cfg.closed_loop else None
-    bases = [BaselineJob(data_root / s, cfg.tests, cfg.closed_loop, masks) for s in setups]
-    todo = [i for i, job in enumerate(bench_jobs) if not (job.init and pretrain_error)]
-    done = executor.run(tasks(fit, [fits[i] for i in todo], gpus) + tasks(baselines, bases, gpus))
-    fitted = {i: {"run": str(fits[i].run_dir), "ok": False, "error": pretrain_error} for i in range(len(fits))}
-    fitted.update({i: {"run": str(fits[i].run_dir), **d} for i, d in zip(todo, done)})
-    base = dict(zip(setups, done[len(todo):]))
-
-    rows, failures, results = [], [], []
+    scoring = Scoring(cfg.tests, cfg.closed_loop, official=True, masks=cfg.closed_loop,
+                      renders_required=True)
+    outcome = execute(plan, out, data_root, spec, scoring, executor, setups, progress)
     seed = cfg.overrides.get("seed", 0)
-    for i, job in enumerate(bench_jobs):
-        record = fitted[i]
-        results.append({"point": 0, "setup": job.setup, "method": job.method, "n_train": job.n_train,
-                        "seed": seed, "table": job.table, "variant": job.run_name,
-                        **result_row(record, base[job.setup], out)})
-        if not record["ok"]:
-            failures.append({**asdict(job), "error": record["error"], "traceback": record.get("traceback", "")})
-            continue
-        rows.append({**asdict(job), "extra": dict(job.extra), "run": record["run"],
-                     "official_tag": record["official_tag"], **record["metrics"]})
-    write_results(out, (), results, extra=("table", "variant"))
+    tabled = [r for r in plan.runs if r.labels["table"] != "pretrain"]
+    write_results(out, (), result_rows(replace(plan, runs=tuple(tabled)), outcome, out),
+                  extra=("table", "variant"))
     write_study_record(out, {
         "name": out.name, "question": f"The CompenNet paper's Tables {', '.join(cfg.tables)} on these setups",
         "kind": "bench", "base": None, "axes": [], "methods": list(cfg.methods), "seeds": [seed],
@@ -265,13 +254,24 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         "setups": {s: os.path.relpath(data_root / s / "setup.toml", out) for s in setups
                    if simulated(data_root / s)}})
 
+    rows, failures = [], []
+    for r in tabled:
+        record = outcome.fitted[r.run]
+        job = {"table": r.labels["table"], "setup": r.setup, "method": r.method, "n_train": r.n_train,
+               "loss": r.cfg.options.loss if r.labels["table"] == "3" else None,
+               "init": r.cfg.options.init if r.after else None, "run": record["run"]}
+        if record["ok"]:
+            rows.append({**job, "official_tag": record["official_tag"], **record["metrics"]})
+        else:
+            failures.append({**job, "error": record["error"], "traceback": record.get("traceback", "")})
     uncompensated, oracle, sizes = {}, {}, set()
     for s in setups:
-        if not base[s]["ok"]:
-            raise ProcamError(f"setup {s}: scoring the uncompensated test captures failed: {base[s]['error']}")
-        uncompensated[s], size = base[s]["uncompensated"], tuple(base[s]["size"])
+        base = outcome.base.get(s, {"ok": False, "error": "not run"})
+        if not base["ok"]:
+            raise ProcamError(f"setup {s}: scoring the uncompensated test captures failed: {base['error']}")
+        uncompensated[s], size = base["uncompensated"], tuple(base["size"])
         sizes.add(size)
-        if base[s]["oracle"] is not None:
-            oracle[s] = base[s]["oracle"]
+        if base["oracle"] is not None:
+            oracle[s] = base["oracle"]
     image_size = ", ".join(f"{w}x{h}" if w != h else f"{w}²" for h, w in sorted(sizes)) + " px"
-    return write_tables(out, cfg, rows, failures, uncompensated, oracle, image_size)
+    return BenchResult(rows, failures, uncompensated, oracle, image_size)

@@ -54,9 +54,9 @@ import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from compensation.experiments.jobs import (BaselineJob, FitJob, RenderJob, baselines, fit, render,
-                                          result_row, tasks, write_results, write_study_record)
 from compensation.experiments.executors import LocalExecutor
+from compensation.experiments.jobs import write_results, write_study_record
+from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name, slug
 from compensation.methods import applicable, get_method, make_config, option_owners
 from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
@@ -275,21 +275,6 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
     return replace(study, axes=tuple(axes), overrides={**study.overrides, **given}, **changes)
 
 
-def _slug(value) -> str:
-    """A value in a setup name (letters, digits, ``_`` and ``-``): ``0.005`` → ``0p005``,
-    ``-2`` → ``m2``, ``[1, 0.5]`` → ``1x0p5``.
-
-    >>> _slug(0.005), _slug(-2), _slug([1.0, 0.5, 0.5]), _slug("RGGB")
-    ('0p005', 'm2', '1p0x0p5x0p5', 'RGGB')
-    """
-    if isinstance(value, (list, tuple)):
-        return "x".join(_slug(v) for v in value)
-    text = str(value).lower() if isinstance(value, bool) else str(value)
-    text = text.replace(".", "p").replace("+", "")
-    text = re.sub(r"^-", "m", text)
-    return re.sub(r"[^A-Za-z0-9_-]", "", text)
-
-
 def _triple_keys() -> set[str]:
     """Setup keys holding an RGB triple of numbers (a number given for them is broadcast)."""
     return {f"{section}.{f.name}" for section, cls in SECTIONS.items() for f in fields(cls)
@@ -297,39 +282,10 @@ def _triple_keys() -> set[str]:
             and all(isinstance(v, (int, float)) for v in f.default)}
 
 
-@dataclass(frozen=True)
-class Point:
-    """One combination of axis values, numbered from 0 in the grid's order (the last axis fastest)."""
-
-    index: int
-    values: tuple
-
-    def of(self, axes: tuple[Axis, ...], on_setup: bool) -> dict:
-        """The point's values of the axes on the setup (or on the training), by key."""
-        return {a.key: v for a, v in zip(axes, self.values) if a.on_setup == on_setup}
-
-
-@dataclass(frozen=True)
-class Run:
-    """One row of ``results.csv``: a method fitted with one seed on one setup of one point."""
-
-    point: Point
-    setup: str
-    method: str
-    n_train: int
-    seed: int
-    cfg: TrainConfig
-    run: str
-    """The run folder relative to the study folder, ``runs/<setup>/<name>``."""
-
-
-@dataclass(frozen=True)
-class Plan:
-    """The jobs of a study: the setups to render (by name, in order) and the runs."""
-
-    points: tuple[Point, ...]
-    setups: dict
-    runs: tuple[Run, ...]
+def _of(study: Study, point: Point, on_setup: bool) -> dict:
+    """The point's values of the axes on the setup (or on the training), by key."""
+    on = {a.key: a.on_setup for a in study.axes}
+    return {k: v for k, v in point.values.items() if on[k] == on_setup}
 
 
 def base_path(study: Study) -> str:
@@ -344,9 +300,9 @@ def _point_setup(study: Study, base: Setup, point: Point, seed: int | None) -> S
     triples = _triple_keys()
     override: dict = {}
     name = base.name
-    for key, value in point.of(study.axes, True).items():
+    for key, value in _of(study, point, True).items():
         section, leaf = key.split(".", 1)
-        name += f"__{section}-{leaf}-{_slug(value)}"
+        name += f"__{section}-{leaf}-{slug(value)}"
         if key in triples and isinstance(value, (int, float)) and not isinstance(value, bool):
             value = [value] * 3
         override.setdefault(section, {})[leaf] = value
@@ -354,25 +310,17 @@ def _point_setup(study: Study, base: Setup, point: Point, seed: int | None) -> S
         override.setdefault("render", {})["seed"] = base.render.seed + seed
         name += f"__seed{seed}"
     mapping = merge_setup(merge_setup(tomllib.loads(dump_setup(base)), study.setup), {**override, "name": name})
-    shown = ", ".join(f"{k} = {v!r}" for k, v in point.of(study.axes, True).items())
+    shown = ", ".join(f"{k} = {v!r}" for k, v in _of(study, point, True).items())
     return parse_setup(mapping, f"{study.path} (point {point.index}: {shown})", study.path.parent)
 
 
 def _train_config(study: Study, method: str, n_train: int, seed: int, point: Point) -> TrainConfig:
-    values = {**study.options, **point.of(study.axes, False), "n_train": n_train, "n_test": study.n_test,
+    values = {**study.options, **_of(study, point, False), "n_train": n_train, "n_test": study.n_test,
               "seed": seed}
     try:
         return make_config(study.profile, method, **applicable(method, values))
     except ProcamError as exc:
         raise ProcamError(f"{study.path} (point {point.index}): {exc}") from None
-
-
-def _run_name(method: str, n_train: int, seed: int, cfg: TrainConfig, point: Point, study: Study) -> str:
-    """``<method>-n<n_train>-seed<seed>``, then ``-<option><value>`` for each training axis the
-    method takes (one run shared by the points of an option it does not take)."""
-    taken = applicable(method, point.of(study.axes, False))
-    return f"{method}-n{n_train}-seed{seed}" + "".join(
-        f"-{k}{_slug(v)}" for k, v in taken.items() if k != "n_train")
 
 
 def _selected(study: Study, point: Point, setup: str) -> bool:
@@ -403,7 +351,7 @@ def expand(study: Study) -> Plan:
         if not axis.on_setup and axis.key not in used:
             raise ProcamError(f"{study.path}: axis {axis.key!r}: not an option of any method of the "
                               f"study ({', '.join(study.methods)})")
-    points = tuple(Point(i, values) for i, values in
+    points = tuple(Point(i, {a.key: v for a, v in zip(study.axes, values)}) for i, values in
                    enumerate(itertools.product(*(a.values for a in study.axes))))
     train_axis = any(a.key == "n_train" for a in study.axes)
     setups: dict[str, Setup] = {}
@@ -413,20 +361,22 @@ def expand(study: Study) -> Plan:
         for base in bases:
             for seed in study.seeds:
                 setup = _point_setup(study, base, point, seed if study.render_seeds else None)
-                key = (base.name, point.of(study.axes, True), seed if study.render_seeds else None)
+                key = (base.name, _of(study, point, True), seed if study.render_seeds else None)
                 if origin.setdefault(setup.name, key) != key:
                     raise ProcamError(f"{study.path}: two points give the setup name {setup.name!r}; "
                                       "make the axis values differ in more than punctuation")
                 if not _selected(study, point, setup.name):
                     continue
                 setups.setdefault(setup.name, setup)
-                sizes = (point.of(study.axes, False)["n_train"],) if train_axis else study.n_train
+                sizes = (_of(study, point, False)["n_train"],) if train_axis else study.n_train
                 for method in study.methods:
                     for n in sizes:
-                        cfg = _train_config(study, method, n, seed, point)
-                        name = _run_name(method, n, seed, cfg, point, study)
-                        runs.append(Run(point, setup.name, method, n, seed, cfg,
-                                        f"runs/{setup.name}/{name}"))
+                        # a method that does not take a training axis is fitted once for all its values
+                        varied = {k: v for k, v in applicable(method, _of(study, point, False)).items()
+                                  if k != "n_train"}
+                        runs.append(Run(point, setup.name, method, n, seed,
+                                        _train_config(study, method, n, seed, point),
+                                        f"runs/{setup.name}/{run_name(method, n, seed, varied)}"))
     if not runs:
         raise ProcamError(f"--only {','.join(study.only)}: matches no point number or setup of "
                           f"{study.path} (points 0-{len(points) - 1}; setups e.g. {next(iter(origin))})")
@@ -479,36 +429,17 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     out.mkdir(parents=True, exist_ok=True)
     record = study_record(study, plan)
     write_study_record(out, {**record, "executor": executor.name})
-    data_root = out / "data"
     spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size)
-    gpus = executor.gpus()
-    renders = [RenderJob(data_root, s, spec, progress) for s in plan.setups.values()]
-    rendered = dict(zip(plan.setups, executor.run(tasks(render, renders, gpus))))
-    ready = [name for name, done in rendered.items() if done["ok"]]
-
-    unique: dict[str, FitJob] = {}
-    for r in plan.runs:
-        if rendered[r.setup]["ok"]:
-            unique.setdefault(r.run, FitJob(data_root / r.setup, r.cfg, out / r.run, progress=progress))
-    bases = [BaselineJob(data_root / name, study.n_test, record=out / "baselines" / f"{name}.json")
-             for name in ready]
-    done = executor.run(tasks(fit, list(unique.values()), gpus) + tasks(baselines, bases, gpus))
-    fitted = {run: {"run": str(job.run_dir), **d} for (run, job), d in zip(unique.items(), done)}
-    base = dict(zip(ready, done[len(unique):]))
-
-    rows = []
-    for r in plan.runs:
-        record_of = fitted.get(r.run) or {"ok": False, "run": str(out / r.run),
-                                          "error": f"render of {r.setup} failed: {rendered[r.setup]['error']}"}
-        rows.append({"point": r.point.index, **{a.key: v for a, v in zip(study.axes, r.point.values)},
-                     "setup": r.setup, "method": r.method, "n_train": r.n_train, "seed": r.seed,
-                     **result_row(record_of, base.get(r.setup), out)})
+    outcome = execute(plan, out, out / "data", spec, Scoring(study.n_test), executor,
+                      list(plan.setups), progress)
+    rows = result_rows(plan, outcome, out)
     results = write_results(out, [a.key for a in study.axes], rows)
-    trained = sum(1 for d in fitted.values() if d["ok"] and d["trained"])
+    fitted = [d for d in outcome.fitted.values() if not d.get("skipped")]
+    trained = sum(1 for d in fitted if d["ok"] and d["trained"])
     return {"study": out / "study.json", "results": results, "jobs": len(fitted), "trained": trained,
-            "reused": sum(1 for d in fitted.values() if d["ok"]) - trained,
+            "reused": sum(1 for d in fitted if d["ok"]) - trained,
             "failed": sum(1 for row in rows if row["status"] == "failed"),
-            "setups": len(ready)}
+            "setups": len(outcome.base)}
 
 
 def study_file(spec: str) -> Path:

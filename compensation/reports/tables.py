@@ -12,15 +12,12 @@ import csv
 import io
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from compensation.experiments.bench import LOSSES, TABLE2, BenchConfig, BenchResult
 from compensation.methods import METHODS
 from sim.io import atomic_write, write_json, write_text
-
-if TYPE_CHECKING:
-    from compensation.experiments.bench import BenchConfig
 
 METRICS = ("psnr", "rmse", "ssim", "deltaE")
 """Surrogate metrics, in table order."""
@@ -30,10 +27,6 @@ PAPER_METRICS = ("psnr", "rmse", "ssim")
 """The metrics the paper reports: each gets a ``paper`` column beside procam's."""
 CL_COLUMNS = (*METRICS, "psnr_reachable", "infer_ms_per_frame")
 """Closed-loop keys shown in the tables (the last only for methods)."""
-LOSSES = ("l1", "l2", "ssim", "l1+ssim")
-"""The training losses Table 3 compares."""
-TABLE2 = dict(n_train=32, iters=500, batch=32)
-"""The paper's fine-tuning setting for Table 2."""
 
 PAPER_TABLE1: dict[tuple[str, int | None], tuple[float, float, float]] = {
     ("uncompensated", None): (12.1673, 0.4342, 0.4875),
@@ -113,8 +106,7 @@ def _correlation_note(rows: list[dict]) -> str:
             f"{len(pairs)} runs: " + ", ".join(parts) + ". CL columns: closed loop.")
 
 
-def write_tables(out: Path, cfg: BenchConfig, rows, failures, uncompensated, oracle,
-                 image_size: str) -> dict:
+def write_tables(out: Path, cfg: BenchConfig, result: BenchResult) -> dict:
     """Write ``table{1,2,3}.{md,csv}``, ``per_setup.{md,csv}``, ``failures.json`` and ``bench.json``.
 
     Tables 1-3 carry the paper's figures in ``paper`` columns beside procam's (:data:`PAPER_TABLE1`
@@ -122,17 +114,14 @@ def write_tables(out: Path, cfg: BenchConfig, rows, failures, uncompensated, ora
     simulated; the others (no ``setup.toml``, no closed-loop scores) are named in Table 1's note, and
     without any simulated setup the columns are left out.
 
-    Parameters
-    ----------
-    image_size : str
-        The setups' image size for the titles (e.g. ``"64² px"``).
-
     Returns
     -------
     dict
         Paths of the files written, by name.
     """
     files = {}
+    rows, failures, uncompensated, oracle = result.rows, result.failures, result.uncompensated, result.oracle
+    image_size = result.image_size
     cl = cfg.closed_loop and any("closed_loop" in u for u in uncompensated.values())
     cl_head = [f"CL {LABELS[m]}" for m in METRICS] + ["CL PSNR reachable"]
     head = ["method", "n_train"] + _with_paper([LABELS[m] for m in METRICS],

@@ -145,7 +145,7 @@ def field_docs(cls: type) -> dict[str, str]:
 
 
 def plain_text(doc: str) -> str:
-    """A docstring fragment as one line of plain text: reST roles and literals reduced to their text.
+    r"""A docstring fragment as one line of plain text: reST roles and literals reduced to their text.
 
     >>> plain_text(":data:`SIZE_MULTIPLE` pixels, ``None`` uses\n  :func:`~compensation.methods.make_config`")
     'SIZE_MULTIPLE pixels, None uses make_config'
