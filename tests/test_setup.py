@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim import images
+from sim import images, surfaces
 from sim.projector import frame_area
 from sim.errors import SetupError
 from sim.io import write_png
+from sim.options import Table, parse, spec_of
+from sim.setup.schema import SECTIONS
 from sim.setup import (AmbientConfig, CameraConfig, ProjectorConfig, RenderConfig, Setup,
                        SurfaceConfig, dump_setup, load_setup, load_setups, load_suite, parse_setup,
                        scene_path, temperature_rgb)
@@ -87,7 +89,7 @@ def test_defocus_blurs_a_few_pixels():
 
 def test_corner_scene_uses_inter_reflection():
     s = load_setup(scene_path("corner"))
-    assert s.surface.geometry == "corner" and s.surface.corner_angle == 90.0
+    assert s.surface.geometry == "corner" and s.surface.shape.corner_angle == 90.0
     assert s.render.fidelity == "auto" and s.render.max_depth == 3  # auto measures the depth
     assert s.projector.look_at == (0.0, 0.0, 0.0) and not s.is_planar_diffuse
 
@@ -144,9 +146,15 @@ def test_dump_writes_every_value_and_the_resolved_ambient():
     data = tomllib.loads(text)
     assert data["ambient"] == {"temperature": 3200.0, "intensity": 0.05}
     assert "# resolved linear RGB radiance = [" in text
-    for section in ("surface", "projector", "camera", "render"):
+    for section in ("projector", "camera", "render"):
         cfg = getattr(s, section)
         assert set(data[section]) == {f.name for f in dataclasses.fields(cfg)}
+    corner = load_setup(scene_path("corner")).surface  # a surface's own keys in its table
+    for surface in (s.surface, corner):
+        own = {f.name for f in dataclasses.fields(surface.shape)}
+        written = tomllib.loads(dump_setup(dataclasses.replace(s, surface=surface)))["surface"]
+        assert set(written) == {f.name for f in dataclasses.fields(surface) if f.name != "shape"} | own
+    assert tomllib.loads(dump_setup(dataclasses.replace(s, surface=corner)))["surface"]["corner_angle"] == 90.0
 
 
 def test_round_trip_of_texture_file_and_odd_strings(tmp_path):
@@ -273,6 +281,126 @@ def test_out_of_range_message_is_the_documented_one(tmp_path):
 def test_missing_setup_file():
     with pytest.raises(SetupError, match="nowhere.toml: cannot read setup file"):
         load_setup("nowhere.toml")
+
+
+# ---------------------------------------------------------------------------------- declared keys
+
+def _option_classes() -> list[type]:
+    return [*SECTIONS.values(), *(cls.Options for cls in surfaces.SURFACES.values())]
+
+
+@pytest.mark.parametrize("cls", _option_classes(), ids=lambda c: c.__name__)
+def test_every_key_declares_its_check(cls):
+    """A key without a declared check cannot exist: every field carries a Spec, and each
+    default passes its own check (the defaults are what a missing key becomes)."""
+    for f in dataclasses.fields(cls):
+        spec = spec_of(f)
+        if spec.kind != "variant" and f.default is not None:
+            assert spec.value(f.default) == f.default, f.name
+
+
+def test_a_field_declared_without_a_check_cannot_be_parsed():
+    @dataclasses.dataclass(frozen=True)
+    class Flare:
+        strength: float = 0.3
+
+    with pytest.raises(TypeError, match="'strength' is declared without a check"):
+        parse(Flare, {}, Table("<test>", "camera"))
+
+
+OTHER_VALUES = {"position": (0.1, 0.0, 1.5), "look_at": (0.0, 0.1, -0.1), "up": (1.0, 1.0, 0.0),
+                "texture": "uniform", "response": "linear"}
+"""Valid non-default values where a rule of thumb gives none (poses, strings)."""
+SINGLE_VALUED = {("camera", "bit_depth")}
+"""Keys with one valid value: nothing else to read."""
+
+
+def _other_value(f: dataclasses.Field):
+    """A valid value of a declared key other than its default."""
+    spec = spec_of(f)
+    if f.name in OTHER_VALUES:
+        return OTHER_VALUES[f.name]
+
+    def number(default, integer=False):
+        candidates = (default + 1, default * 2, 8, 1) if integer else (
+            default * 0.5 if default else 0.5, 0.3, 1.5, -0.01)
+        return next(v for v in candidates if v in spec.range and v != default)
+
+    if spec.kind == "choice":
+        return next(c for c in spec.options() if c != f.default)
+    if spec.kind == "boolean":
+        return not f.default
+    if spec.kind in ("number", "integer"):
+        return number(f.default, spec.kind == "integer")
+    if spec.kind == "vector":
+        return tuple(number(v, spec.integer) for v in f.default)
+    assert spec.kind == "matrix"
+    return tuple(tuple(v + 0.1 for v in row) for row in f.default)
+
+
+@pytest.mark.parametrize("section", SECTIONS)
+def test_every_key_of_a_section_is_read_from_the_file(section):
+    """Each key given with a value other than its default reaches the parsed setup: none is
+    silently replaced by its default. (Optional keys, default None, are read together with
+    another: the ambient light's temperature and intensity, tested above.)"""
+    for f in dataclasses.fields(SECTIONS[section]):
+        if spec_of(f).kind == "variant" or f.default is None or (section, f.name) in SINGLE_VALUED:
+            continue
+        value = _other_value(f)
+        given = [list(v) for v in value] if spec_of(f).kind == "matrix" else (
+            list(value) if isinstance(value, tuple) else value)
+        parsed = getattr(parse_setup({"name": "n", section: {f.name: given}}), section)
+        assert getattr(parsed, f.name) == value != f.default, f"{section}.{f.name}"
+
+
+def test_unknown_camera_key_is_refused(tmp_path):
+    path = tmp_path / "flare.toml"
+    path.write_text('name = "b"\n[camera]\nflare = 0.3\n')
+    with pytest.raises(SetupError, match=r"flare\.toml: camera\.flare: unknown key; valid keys of "
+                                         r"\[camera\]: aperture_radius, bayer, "):
+        load_setup(path)
+
+
+def test_a_surface_key_is_refused_for_a_surface_that_does_not_take_it(tmp_path):
+    path = tmp_path / "plane.toml"
+    path.write_text('name = "b"\n[surface]\ngeometry = "plane"\ncorner_angle = 60.0\n')
+    with pytest.raises(SetupError) as err:
+        load_setup(path)
+    assert str(err.value).startswith(
+        f'{path}: surface.corner_angle = 60.0: not a key of surface.geometry = "plane" (only of '
+        '"corner"); valid keys of [surface]: albedo_scale, geometry, material, roughness, size, ')
+    assert "corner_angle" not in str(err.value).split("valid keys")[1]
+    corner = parse_setup({"name": "c", "surface": {"geometry": "corner", "corner_angle": 60}})
+    assert corner.surface.shape.corner_angle == 60.0 and type(corner.surface.shape.corner_angle) is float
+    with pytest.raises(SetupError, match=r"surface\.corner_angle = 200\.0: expected a number in "
+                                         r"\(30, 180\) degrees"):
+        parse_setup({"name": "c", "surface": {"geometry": "corner", "corner_angle": 200.0}})
+
+
+def test_unknown_surface_key_lists_every_surface_key():
+    with pytest.raises(SetupError, match=r"surface\.angle: unknown key; valid keys of \[surface\]: "
+                                         r"albedo_scale, corner_angle, geometry, "):
+        parse_setup({"name": "c", "surface": {"angle": 60}})
+
+
+def test_surface_options_follow_the_geometry():
+    assert SurfaceConfig().shape == surfaces.get_surface("plane").Options()
+    corner = SurfaceConfig(geometry="corner")
+    assert corner.shape == surfaces.get_surface("corner").Options() and corner.shape.corner_angle == 90.0
+    with pytest.raises(TypeError, match="expected CornerOptions for geometry 'corner'"):
+        SurfaceConfig(geometry="corner", shape=SurfaceConfig().shape)
+    wide = parse_setup({"name": "w", "surface": {"geometry": "corner", "corner_angle": 120.0}})
+    assert parse_setup(tomllib.loads(dump_setup(wide))) == wide
+
+
+def test_a_suite_entry_changing_the_surface_drops_the_base_surface_keys(tmp_path):
+    (tmp_path / "base.toml").write_text('name = "base"\n[surface]\ngeometry = "corner"\ncorner_angle = 60.0\n'
+                                        '[render]\nfidelity = "path"\n')
+    (tmp_path / "s.toml").write_text('base = "base.toml"\n[[setup]]\nname = "c"\n'
+                                     '[[setup]]\nname = "p"\nsurface = { geometry = "plane" }\n')
+    corner, plane = load_suite(tmp_path / "s.toml")
+    assert corner.surface.shape.corner_angle == 60.0
+    assert plane.surface == SurfaceConfig()
 
 
 # ---------------------------------------------------------------------------------- suites
@@ -418,7 +546,7 @@ def _walls(s: SurfaceConfig) -> list[tuple[np.ndarray, float, float]]:
     (from u0 to u1 metres) and +y (height h): (u, u0, u1)."""
     if s.geometry == "plane":
         return [(np.array([1.0, 0.0, 0.0]), -s.size[0] / 2, s.size[0] / 2)]
-    half = math.radians(s.corner_angle) / 2  # wings leave the vertical edge towards +z
+    half = math.radians(s.shape.corner_angle) / 2  # wings leave the vertical edge towards +z
     return [(np.array([-math.sin(half), 0.0, math.cos(half)]), 0.0, s.size[0]),
             (np.array([math.sin(half), 0.0, math.cos(half)]), 0.0, s.size[0])]
 

@@ -9,16 +9,16 @@ from sim import surfaces
 from sim.errors import SetupError
 from sim.geometry import Pinhole
 from sim.setup import SurfaceConfig
-from sim.surfaces.corner import Corner
-from sim.surfaces.plane import Plane
+from sim.surfaces.corner import Corner, CornerOptions
+from sim.surfaces.plane import Plane, PlaneOptions
 
 
 def _corner(angle: float = 90.0, size=(1.0, 1.0)) -> Corner:
-    return Corner(SurfaceConfig(geometry="corner", size=size, corner_angle=angle))
+    return Corner(size, 512, CornerOptions(corner_angle=angle))
 
 
 def _plane(size=(1.2, 1.0)) -> Plane:
-    return Plane(SurfaceConfig(geometry="plane", size=size))
+    return Plane(size, 512, PlaneOptions())
 
 
 def _projector(position, width=33, height=9, fov=40.0) -> Pinhole:
@@ -43,6 +43,15 @@ def test_registry_lists_the_shipped_surfaces():
     assert surfaces.get_surface("plane") is Plane and surfaces.get_surface("corner") is Corner
     assert isinstance(surfaces.surface_for(SurfaceConfig(geometry="corner")), Corner)
     assert isinstance(surfaces.surface_for(SurfaceConfig()), Plane)  # the default geometry
+    built = surfaces.surface_for(SurfaceConfig(geometry="corner", size=(0.6, 1.0), texture_resolution=64,
+                                               shape=CornerOptions(corner_angle=60.0)))
+    assert built == Corner((0.6, 1.0), 64, CornerOptions(corner_angle=60.0))
+
+
+def test_each_surface_takes_its_own_options():
+    assert Plane.Options is PlaneOptions and Corner.Options is CornerOptions
+    with pytest.raises(TypeError, match="Plane: options CornerOptions"):
+        Plane((1.0, 1.0), 512, CornerOptions())
 
 
 def test_registry_refuses_unknown_names():
@@ -179,7 +188,7 @@ def test_texture_size_and_layout():
     """The albedo texture spans the whole surface: a corner's is two wings wide, its left half on
     the left wing (index 0) and its right half on the right wing."""
     assert _plane(size=(1.2, 1.0)).texture_size() == (512, 427)
-    assert Plane(SurfaceConfig(size=(0.5, 1.0), texture_resolution=64)).texture_size() == (32, 64)
+    assert Plane((0.5, 1.0), 64, PlaneOptions()).texture_size() == (32, 64)
     assert _corner(size=(0.6, 1.0)).texture_size() == (512, 427)
     assert _corner(size=(1.2, 1.0)).texture_size() == (512, 213)
     assert [r.tex_span for r in _corner().rects()] == [(0.0, 0.5), (0.5, 1.0)]

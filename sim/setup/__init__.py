@@ -3,10 +3,12 @@
 A setup file (TOML, ``scenes/*.toml``) has a ``name`` and the sections ``surface``, ``projector``,
 ``camera``, ``ambient``, ``render`` and ``registration``; every key but ``name`` is optional. The package holds
 
-- :mod:`~sim.setup.schema`: the frozen dataclasses (:class:`Setup` and its sections), field by
-  field with units and defaults;
-- :mod:`~sim.setup.validation`: :func:`parse_setup`, a mapping checked into a :class:`Setup`
-  with errors naming the file, the dotted key and what was expected;
+- :mod:`~sim.setup.schema`: the frozen dataclasses (:class:`Setup` and its sections), each key
+  declared once with its default, kind, range and unit (:mod:`sim.options`) and documented by
+  its docstring; a surface's own keys are declared by its module in :mod:`sim.surfaces`;
+- :mod:`~sim.setup.validation`: :func:`parse_setup`, a mapping checked into a :class:`Setup` by
+  the one validator of :mod:`sim.options` plus the checks that span keys, with errors naming
+  the file, the dotted key and what was expected;
 - :mod:`~sim.setup.toml`: :func:`load_setup` (a file) and :func:`dump_setup` (the fully
   resolved TOML, which reads back to an equal :class:`Setup`);
 - :mod:`~sim.setup.suites`: :func:`load_suite`, the shipped scenes (:func:`scene_path`),

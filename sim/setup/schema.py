@@ -1,9 +1,13 @@
 """The setup schema: frozen dataclasses describing one projector-camera setup, field by field.
 
+Every key is declared once, here (or, for a surface's own keys, in its module of
+:mod:`sim.surfaces`): its default, kind, range and unit in the field's declaration
+(:mod:`sim.options`), its meaning in the field's docstring. :mod:`sim.setup.validation` checks a
+setup file against these declarations alone.
+
 World: metres and degrees; the (planar) surface lies in the x-y plane at z = 0, centred at the
 origin, normal +z, up +y; projector and camera stand at z > 0 looking towards -z. The defaults
-here are the defaults of a setup file (:mod:`sim.setup.validation` fills every missing key from
-them).
+here are the defaults of a setup file (a missing key takes its default).
 """
 from __future__ import annotations
 
@@ -11,6 +15,8 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 from sim import surfaces
+from sim.options import (NON_NEGATIVE, POSITIVE, UNIT, Range, boolean, choice, integer, matrix,
+                         number, string, variant, vector)
 
 NAME_PATTERN = "[A-Za-z0-9_-]+"
 """Setup names (used as dataset folder names)."""
@@ -22,122 +28,161 @@ TEMPERATURE_RANGE = (1000.0, 25000.0)
 class SurfaceConfig:
     """The projection surface (see :mod:`sim.surfaces` for its exact shape)."""
 
-    geometry: str = "plane"
-    """``"plane"`` (one rectangle at z = 0) or ``"corner"`` (two planes meeting at a vertical edge)."""
-    size: tuple[float, float] = (1.2, 1.0)
+    geometry: str = choice("plane", surfaces.names)
+    """A surface of :data:`sim.surfaces.SURFACES`: ``"plane"`` (one rectangle at z = 0) or
+    ``"corner"`` (two planes meeting at a vertical edge)."""
+    size: tuple[float, float] = vector((1.2, 1.0), POSITIVE, "metres")
     """Metres (width, height) of the plane; for a corner, of each wing."""
-    corner_angle: float = 90.0
-    """Degrees, opening angle of a corner, in (30, 180); unused for a plane."""
-    texture: str = "brick"
+    shape: object = variant("geometry", {name: cls.Options for name, cls in surfaces.SURFACES.items()})
+    """The options only the surface ``geometry`` names takes (its ``Options``, declared in its module
+    of :mod:`sim.surfaces`, e.g. a corner's ``corner_angle``), given as keys of the same
+    ``[surface]`` table; None (the default) stands for that surface's defaults."""
+    texture: str = string("brick")
     """``"uniform"``, a generator kind of :data:`sim.images.SURFACE_KINDS`, or the absolute path of
     an image file (a relative path in a setup file is relative to that file)."""
-    texture_seed: int = 0
+    texture_seed: int = integer(0, NON_NEGATIVE)
     """Seed (>= 0) of the texture generator (see :mod:`sim.seeds`)."""
-    texture_resolution: int = 512
+    texture_resolution: int = integer(512, Range(16, 4096), "pixels")
     """Pixels along the longest side of the albedo texture, 16..4096."""
-    albedo_scale: float = 0.8
+    albedo_scale: float = number(0.8, Range(0, 1, lo_open=True))
     """Linear albedo multiplier, in (0, 1]."""
-    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    tint: tuple[float, float, float] = vector((1.0, 1.0, 1.0), UNIT, "(linear RGB)")
     """Linear RGB albedo multiplier per channel, each in [0, 1]."""
-    material: str = "diffuse"
+    material: str = choice("diffuse", ("diffuse", "roughplastic"))
     """``"diffuse"`` or ``"roughplastic"`` (semi-gloss)."""
-    roughness: float = 0.1
+    roughness: float = number(0.1, Range(0, 1, lo_open=True), "(GGX alpha)")
     """GGX alpha of the roughplastic material, in (0, 1]."""
+
+    def __post_init__(self):
+        options = surfaces.get_surface(self.geometry).Options
+        if self.shape is None:
+            object.__setattr__(self, "shape", options())
+        elif not isinstance(self.shape, options):
+            raise TypeError(f"surface shape {self.shape!r}: expected {options.__name__} for "
+                            f"geometry {self.geometry!r}")
 
 
 @dataclass(frozen=True)
 class ProjectorConfig:
     """The projector: response, primaries mixing, pose and optics."""
 
-    resolution: tuple[int, int] = (256, 256)
+    resolution: tuple[int, int] = vector((256, 256), Range(8, 4096), "pixels", integer=True)
     """Pixels (width, height), each 8..4096."""
-    fov: float = 30.0
+    fov: float = number(30.0, Range(1, 120, lo_open=True, hi_open=True), "degrees")
     """Degrees, horizontal field of view, in (1, 120)."""
-    position: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    position: tuple[float, float, float] = vector((0.0, 0.0, 1.0), unit="metres")
     """Metres, world position of the lens (z > 0)."""
-    look_at: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    look_at: tuple[float, float, float] = vector((0.0, 0.0, 0.0), unit="metres")
     """Metres, a world point on the optical axis (towards -z)."""
-    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    up: tuple[float, float, float] = vector((0.0, 1.0, 0.0))
     """Direction of the image's up (not parallel to the optical axis)."""
-    brightness: float = 1.0
+    brightness: float = number(1.0, POSITIVE)
     """Emitter scale (> 0): irradiance 1 at 1 m head-on gives an outgoing radiance equal to the albedo."""
-    gamma: float = 2.2
+    gamma: float = number(2.2, Range(0.1, 10, lo_open=True, hi_open=True))
     """Projector response exponent (encoded input -> linear output), in (0.1, 10)."""
-    black_level: float = 0.005
+    black_level: float = number(0.005, Range(0, 0.2, hi_open=True))
     """Fraction of full output emitted for input 0, in [0, 0.2)."""
-    mixing: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    mixing: tuple[tuple[float, float, float], ...] = matrix(
+        ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), NON_NEGATIVE)
     """3x3 primaries mixing matrix (rows: camera channel, columns: projector primary), entries >= 0."""
-    aperture: float = 0.0
+    aperture: float = number(0.0, NON_NEGATIVE, "metres")
     """Metres, lens aperture diameter for defocus (>= 0); 0 is a pinhole (sharp)."""
-    focus_distance: float = 1.0
+    focus_distance: float = number(1.0, POSITIVE, "metres")
     """Metres (> 0), depth (along the optical axis) at which the projector is in focus; each
     surface point is blurred by the thin-lens disk of its own depth."""
-    keep_aspect: bool = True
+    keep_aspect: bool = boolean(True)
     """True: the scaler resamples an input frame to cover the panel keeping the frame's aspect
     ratio, centred, the rest of the panel at the black level (a 256x256 frame on an 800x600 panel
     fills the central 600x600); False: stretched to fill the whole panel. A frame of the panel's
     aspect fills the panel either way."""
-    psf_sigma: float = 0.0
+    psf_sigma: float = number(0.0, Range(0, 50), "projector pixels")
     """Native projector pixels, in [0, 50]: standard deviation of the lens's Gaussian point-spread
     function (0: sharp)."""
-    flicker: float = 0.0
+    flicker: float = number(0.0, Range(0, 0.5), "(relative brightness std)")
     """Relative standard deviation of the lamp brightness from one capture to the next, in
     [0, 0.5] (0: steady)."""
-    drift: float = 0.0
+    drift: float = number(0.0, Range(-1, 1, lo_open=True, hi_open=True), "(relative brightness change)")
     """Relative change of the lamp brightness between calibration captures (reference, training,
     registration) and test-time captures (test and closed loop), in (-1, 1) (0: none)."""
+
+
+def _response(value: str) -> None:
+    """Raise ValueError unless ``value`` names a camera response curve."""
+    from sim.camera.response import check_response
+
+    check_response(value)
+
+
+def _eight_bits(value: int) -> None:
+    """Raise ValueError unless ``value`` is 8."""
+    if value != 8:
+        raise ValueError("expected 8 (captures are 8-bit PNGs)")
+
+
+def _bayer_choices() -> tuple[str, ...]:
+    """``camera.bayer``'s values: none, or a pattern of :data:`sim.camera.BAYER_PATTERNS`."""
+    from sim.camera.raw import BAYER_PATTERNS
+
+    return ("none", *BAYER_PATTERNS)
+
+
+def _demosaic_methods() -> tuple[str, ...]:
+    """``camera.demosaic``'s values (:data:`sim.camera.DEMOSAIC_METHODS`)."""
+    from sim.camera.raw import DEMOSAIC_METHODS
+
+    return DEMOSAIC_METHODS
 
 
 @dataclass(frozen=True)
 class CameraConfig:
     """The camera: pose, optics and sensor (exposure, noise, response, bit depth)."""
 
-    resolution: tuple[int, int] = (256, 256)
+    resolution: tuple[int, int] = vector((256, 256), Range(8, 4096), "pixels", integer=True)
     """Pixels (width, height), each 8..4096."""
-    fov: float = 40.0
+    fov: float = number(40.0, Range(1, 120, lo_open=True, hi_open=True), "degrees")
     """Degrees, horizontal field of view, in (1, 120)."""
-    position: tuple[float, float, float] = (0.25, 0.0, 1.0)
+    position: tuple[float, float, float] = vector((0.25, 0.0, 1.0), unit="metres")
     """Metres, world position (z > 0)."""
-    look_at: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    look_at: tuple[float, float, float] = vector((0.0, 0.0, 0.0), unit="metres")
     """Metres, a world point on the optical axis (towards -z)."""
-    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    up: tuple[float, float, float] = vector((0.0, 1.0, 0.0))
     """Direction of the image's up (not parallel to the optical axis)."""
-    aperture_radius: float = 0.0
+    aperture_radius: float = number(0.0, NON_NEGATIVE, "metres")
     """Metres, thin-lens aperture radius (>= 0); 0 is a pinhole."""
-    focus_distance: float = 1.03
+    focus_distance: float = number(1.03, POSITIVE, "metres")
     """Metres (> 0), in-focus distance (used when ``aperture_radius > 0``)."""
-    exposure: float = 1.0
+    exposure: float = number(1.0, POSITIVE)
     """Multiplier (> 0) from linear scene radiance to sensor signal; signal 1 is the full well."""
-    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    white_balance: tuple[float, float, float] = vector((1.0, 1.0, 1.0), POSITIVE)
     """Per-channel linear gains, each > 0."""
-    response: str = "sRGB"
+    response: str = string("sRGB", check=_response)
     """Camera response curve, a name accepted by :func:`sim.camera.check_response`."""
-    shot_noise: float = 2e-4
+    shot_noise: float = number(2e-4, NON_NEGATIVE)
     """Poisson gain a (>= 0): a signal s in [0, 1] has variance a * s (s / a electrons)."""
-    read_noise: float = 2e-3
+    read_noise: float = number(2e-3, NON_NEGATIVE, "(linear signal units)")
     """Gaussian read-noise sigma (>= 0), in linear signal units."""
-    bit_depth: int = 8
+    bit_depth: int = integer(8, check=_eight_bits)
     """Bits per channel of the captures; must be 8."""
-    psf_sigma: float = 0.0
+    psf_sigma: float = number(0.0, Range(0, 16), "camera pixels")
     """Camera pixels (>= 0, at most 16): standard deviation of the Gaussian optical PSF /
     anti-alias filter applied to the linear radiance; 0 is off."""
-    bayer: str = "none"
+    bayer: str = choice("none", _bayer_choices)
     """Colour filter array: ``"none"`` (three samples per pixel) or a Bayer pattern ``"RGGB"``,
     ``"BGGR"``, ``"GRBG"``, ``"GBRG"`` (top-left 2x2 block, row by row): one channel per pixel,
     noise drawn on the raw mosaic, white balance applied after the noise, then demosaicing."""
-    demosaic: str = "bilinear"
+    demosaic: str = choice("bilinear", _demosaic_methods)
     """OpenCV demosaicing of a Bayer mosaic: ``"bilinear"``, ``"vng"`` or ``"edgeaware"``
     (used only when ``bayer`` is not ``"none"``)."""
-    vignetting: float = 0.0
+    vignetting: float = number(0.0, Range(0, 1, hi_open=True), "(fraction lost at the corners)")
     """Fraction in [0, 1) of the light lost at the frame corners (cos^4-like falloff
     ``(1 + c rho**2)**-2`` of the normalised radius rho, see :mod:`sim.camera.optics`); 0 is off."""
-    distortion: float = 0.0
+    distortion: float = number(0.0, Range(-0.14, 1), "(radial k1, normalised by the half-diagonal)")
     """Radial lens distortion k1 (Brown model, radius normalised by the half-diagonal), in
     [-0.14, 1]: a point at radius rho is seen at ``rho (1 + k1 rho**2)``; negative is barrel,
     0 is off."""
-    jpeg_quality: int = 0
+    jpeg_quality: int = integer(0, Range(0, 100), "(0: no JPEG)")
     """JPEG quality 1..100 of the captures (OpenCV), or 0: no compression (lossless PNG)."""
-    exposure_mode: str = "manual"
+    exposure_mode: str = choice("manual", ("manual", "rule"))
     """``"manual"``: ``exposure`` is used as given; ``"rule"``: set from captures of plain white
     and plain black as the official README tells (plain white slightly over-exposed:
     :data:`sim.camera.WHITE_CLIPPED_FRACTION` of the pixels at code 255), recorded in the
@@ -148,12 +193,12 @@ class CameraConfig:
 class AmbientConfig:
     """Constant ambient light, given as a radiance or as a colour temperature and intensity."""
 
-    radiance: tuple[float, float, float] = (0.02, 0.02, 0.02)
+    radiance: tuple[float, float, float] = vector((0.02, 0.02, 0.02), NON_NEGATIVE, "(linear RGB radiance)")
     """Linear RGB radiance of the constant emitter, each >= 0 (resolved from the temperature
     when one is given)."""
-    temperature: float | None = None
+    temperature: float | None = number(None, Range(*TEMPERATURE_RANGE), "kelvin")
     """Kelvin (1000..25000) the radiance came from, or None when given directly."""
-    intensity: float | None = None
+    intensity: float | None = number(None, NON_NEGATIVE, "(luminance)")
     """Luminance (>= 0) the temperature's colour was scaled to, or None when given directly."""
 
 
@@ -161,17 +206,17 @@ class AmbientConfig:
 class RenderConfig:
     """Light transport and sampling."""
 
-    fidelity: str = "auto"
+    fidelity: str = choice("auto", ("auto", "direct", "path", "transport"))
     """``"auto"`` (measured: the cheapest level, and spp, whose error is below the camera's noise;
     see :mod:`sim.fidelity`), ``"path"``, ``"direct"`` or ``"transport"`` (a light-transport
     operator calibrated from direct renders at ``spp``)."""
-    spp: int = 16
+    spp: int = integer(16, Range(1, 65536))
     """Samples per pixel of the projector contribution, 1..65536."""
-    ambient_spp: int = 256
+    ambient_spp: int = integer(256, Range(1, 65536))
     """Samples per pixel of the ambient-only image (rendered once per setup), 1..65536."""
-    max_depth: int = 3
+    max_depth: int = integer(3, Range(2))
     """Path depth for path tracing (>= 2; a corner needs >= 3 for its inter-reflection)."""
-    seed: int = 0
+    seed: int = integer(0, NON_NEGATIVE)
     """Seed base (>= 0) of the Mitsuba sampler and of the camera noise (see :mod:`sim.seeds`)."""
 
 
@@ -184,12 +229,12 @@ class RegistrationConfig:
     """How captures are brought from the camera into the canonical projector view
     (:mod:`sim.registration`)."""
 
-    method: str = "auto"
+    method: str = choice("auto", REGISTRATION_METHODS)
     """``"homography"``: warp by the homography fitted to projected checkerboard corners found in
     the captures, as a real pipeline does on a plane; ``"exact"``: the dense map computed from the
     scene geometry (what a structured-light scan measures); ``"auto"``: homography on a planar
     surface, exact map otherwise."""
-    jitter: float = 0.0
+    jitter: float = number(0.0, NON_NEGATIVE, "canonical pixels")
     """Canonical pixels (>= 0): standard deviation of a random displacement added to each detected
     checkerboard corner before the homography fit (a sloppier calibration); 0 adds none."""
 

@@ -13,10 +13,12 @@ import re
 from collections.abc import Mapping
 from pathlib import Path
 
+from sim import surfaces
 from sim.errors import SetupError
-from sim.setup.schema import NAME_PATTERN, Setup
+from sim.options import option_fields, shown
+from sim.setup.schema import NAME_PATTERN, Setup, SurfaceConfig
 from sim.setup.toml import read_toml
-from sim.setup.validation import parse_setup, shown
+from sim.setup.validation import parse_setup
 
 
 def merge_setup(base: Mapping, override: Mapping) -> dict:
@@ -24,6 +26,14 @@ def merge_setup(base: Mapping, override: Mapping) -> dict:
 
     The two forms of the ambient light exclude each other: an override giving ``radiance`` drops
     the base's ``temperature``/``intensity`` and one giving ``temperature`` drops its ``radiance``.
+    An override giving another ``surface.geometry`` drops the keys only the base's surface takes
+    (a corner's ``corner_angle`` when the override chooses a plane).
+
+    Examples
+    --------
+    >>> merge_setup({"surface": {"geometry": "corner", "corner_angle": 60.0, "size": [1, 1]}},
+    ...             {"surface": {"geometry": "plane"}})
+    {'surface': {'geometry': 'plane', 'size': [1, 1]}}
     """
     out = copy.deepcopy(dict(base))
     for key, value in override.items():
@@ -35,10 +45,23 @@ def merge_setup(base: Mapping, override: Mapping) -> dict:
                     merged.pop("intensity", None)
                 if "temperature" in value:
                     merged.pop("radiance", None)
+            if key == "surface" and "geometry" in value:
+                for name in _shape_keys(merged.get("geometry", SurfaceConfig.geometry), value["geometry"]):
+                    merged.pop(name, None)
             out[key] = merge_setup(merged, value)
         else:
             out[key] = copy.deepcopy(value)
     return out
+
+
+def _shape_keys(old: object, new: object) -> set[str]:
+    """The keys surface ``old`` takes and surface ``new`` does not (none for an unknown name,
+    which validation reports)."""
+    def keys(name: object) -> set[str]:
+        cls = surfaces.SURFACES.get(name) if isinstance(name, str) else None
+        return {f.name for f in option_fields(cls.Options)} if cls else set()
+
+    return keys(old) - keys(new)
 
 
 def load_suite(path: Path | str) -> list[Setup]:

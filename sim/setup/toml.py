@@ -6,12 +6,12 @@
 from __future__ import annotations
 
 import tomllib
-from dataclasses import fields
 from pathlib import Path
 
 import tomli_w
 
 from sim.errors import SetupError
+from sim.options import flat_items
 from sim.setup.schema import SECTIONS, Setup
 from sim.setup.validation import parse_setup
 
@@ -57,7 +57,8 @@ def load_setup(path: Path | str) -> Setup:
 
 
 def dump_setup(setup: Setup) -> str:
-    """The fully resolved setup as TOML: every value, sections in schema order.
+    """The fully resolved setup as TOML: every value, sections and keys in schema order (a
+    surface's own keys in the place of :attr:`~sim.setup.schema.SurfaceConfig.shape`).
 
     ``parse_setup(tomllib.loads(dump_setup(s))) == s``. An ambient light given by colour
     temperature is written as ``temperature`` and ``intensity``, with the resolved radiance in
@@ -85,6 +86,5 @@ def dump_setup(setup: Setup) -> str:
             header += f"# resolved linear RGB radiance = [{', '.join(map(repr, cfg.radiance))}]\n"
             document[section] = {"temperature": cfg.temperature, "intensity": cfg.intensity}
         else:
-            document[section] = {f.name: getattr(cfg, f.name) for f in fields(cfg)
-                                 if getattr(cfg, f.name) is not None}
+            document[section] = {k: v for k, v in flat_items(cfg).items() if v is not None}
     return header + tomli_w.dumps(document)

@@ -1,7 +1,8 @@
 """The :class:`Surface` interface: the shape the projector lights and the camera sees.
 
-A surface is built from the setup's :class:`~sim.setup.SurfaceConfig` and answers every question
-the simulator asks about geometry: the Mitsuba shapes with the albedo texture laid out over them,
+A surface is built from the keys of a setup's surface section that shape it (``size``,
+``texture_resolution`` and the surface's own options, :attr:`Surface.Options`) and answers every
+question the simulator asks about geometry: the Mitsuba shapes with the albedo texture laid out over them,
 the first hit of rays (registration, light-transport footprints), the normal at a hit, the depth of
 each projector pixel's hit, and whether its parts light each other. :class:`RectSurface` implements
 it for surfaces made of flat textured rectangles.
@@ -14,14 +15,11 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from sim.geometry import Pinhole, Rect, first_hit
-
-if TYPE_CHECKING:
-    from sim.setup import SurfaceConfig
 
 
 @dataclass(frozen=True)
@@ -30,11 +28,17 @@ class Surface(abc.ABC):
 
     Attributes
     ----------
-    config : SurfaceConfig
-        The setup's surface section (``size``, ``corner_angle``, ``texture_resolution``, …).
+    size : (float, float)
+        Metres (width, height) of the surface (``surface.size``; what it measures is the shape's).
+    texture_resolution : int
+        Pixels along the longest side of the albedo texture (``surface.texture_resolution``).
+    options : Options
+        The surface's own options (``surface.*`` keys only this shape takes).
     """
 
-    config: SurfaceConfig
+    size: tuple[float, float]
+    texture_resolution: int
+    options: Any
 
     name: ClassVar[str]
     """Registry name, the value of ``surface.geometry`` in a setup file."""
@@ -43,6 +47,15 @@ class Surface(abc.ABC):
     and the light transport is dense."""
     planar: ClassVar[bool]
     """True for a single plane: a homography maps projector pixels to camera pixels."""
+    Options: ClassVar[type]
+    """The frozen dataclass of the surface's own options, each field declared with
+    :mod:`sim.options` (unit, range) and documented; a setup file gives them as keys of its
+    ``[surface]`` table, and they are refused for any other surface."""
+
+    def __post_init__(self):
+        if not isinstance(self.options, self.Options):
+            raise TypeError(f"{type(self).__name__}: options {self.options!r}: expected "
+                            f"{self.Options.__name__}")
 
     @property
     @abc.abstractmethod
@@ -50,9 +63,9 @@ class Surface(abc.ABC):
         """Width over height of the albedo texture laid over the whole surface."""
 
     def texture_size(self) -> tuple[int, int]:
-        """(width, height) in pixels of the albedo texture: ``config.texture_resolution`` along the
+        """(width, height) in pixels of the albedo texture: :attr:`texture_resolution` along the
         longest side, the other side keeping :attr:`texture_aspect` (at least 1 pixel)."""
-        aspect, longest = self.texture_aspect, self.config.texture_resolution
+        aspect, longest = self.texture_aspect, self.texture_resolution
         if aspect >= 1:
             return longest, max(1, round(longest / aspect))
         return max(1, round(longest * aspect)), longest
