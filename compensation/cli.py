@@ -1,4 +1,4 @@
-"""The ``procam`` console script: the one place that wires the simulator and the learning side."""
+"""The ``procam`` console script: one sub-command per task, on top of every other module."""
 from __future__ import annotations
 
 import argparse
