@@ -71,11 +71,13 @@ def test_official_outputs(bench):
     for kind, inputs in (("cam", data.test.captures), ("prj", data.test.frames)):
         folder = out / "official" / SETUPS[0] / kind / "cmp" / "CompenNet_l1+ssim_8_2_2"
         assert sorted(os.listdir(folder)) == ["img_0001.png", "img_0002.png"]
-        expected = to_uint8(method.predict(inputs, data.surface).permute(0, 2, 3, 1).numpy())
-        assert np.array_equal(np.stack([read_png(folder / f) for f in sorted(os.listdir(folder))]), expected)
+        predicted = method.predict(inputs, data.surface).permute(0, 2, 3, 1).numpy()
+        written = np.stack([read_png(folder / f) for f in sorted(os.listdir(folder))])
+        assert np.array_equal(written, np.uint8(predicted * 255))  # the official code's conversion
+        assert not np.array_equal(written, to_uint8(predicted))  # truncated, not rounded
     for setup in SETUPS:
         tags = {p.name for p in (out / "official" / setup / "prj" / "cmp").iterdir()}
-        assert tags == {"CompenNet_l1+ssim_8_2_2", "TPS_8", "CompenNet_l1+ssim_32_2_2"}
+        assert tags == {"CompenNet_l1+ssim_8_2_2", "TPS_125", "CompenNet_l1+ssim_32_2_2"}  # TPS: 125 colours
 
 
 def test_bench_without_suite_needs_the_data(tmp_path, capsys):

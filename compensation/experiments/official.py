@@ -9,44 +9,63 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from compensation.data import SetupData
+import numpy as np
+
+from compensation.data import N_PLAIN, SetupData
 from compensation.methods import get_method
 from compensation.training.config import TrainConfig
 from compensation.experiments.runs import load_run
 from sim.dataset import image_name
-from sim.io import to_uint8, write_png
+from sim.io import write_png
 
 
 def official_tag(cfg: TrainConfig, pretrained: bool = False) -> str:
     """The official code's name of a run's output folder: ``<model>_<loss>_<ntrain>_<batch>_<iters>``.
 
     ``<model>`` is the method's ``official_name`` (``_pretrained`` appended for a pre-trained
-    initialisation); a method without a ``loss``, ``batch`` or ``iters`` option leaves that field
-    out (TPS: ``TPS_125``; pix2pix: ``pix2pix_125_1_10000``).
+    initialisation); ``<ntrain>`` the training pairs it fits (125 for a method that fits the plain
+    colours whatever ``n_train``); a method without a ``loss``, ``batch`` or ``iters`` option leaves
+    that field out (TPS: ``TPS_125``; pix2pix: ``pix2pix_125_1_10000``).
 
     Examples
     --------
     >>> from compensation.methods import make_config
     >>> official_tag(make_config("paper", "compennet"))
     'CompenNet_l1+ssim_500_64_1000'
-    >>> official_tag(make_config("quick", "tps-textured", n_train=125))
-    'TPS_textured_125'
+    >>> official_tag(make_config("quick", "tps-textured", n_train=250))
+    'TPS_textured_250'
+    >>> official_tag(make_config("quick", "tps", n_train=250))
+    'TPS_125'
     """
-    options = cfg.options
-    model = get_method(cfg.method).official_name + ("_pretrained" if pretrained else "")
-    fields = [model] + ([options.loss] if hasattr(options, "loss") else []) + [str(cfg.n_train)]
+    options, method = cfg.options, get_method(cfg.method)
+    model = method.official_name + ("_pretrained" if pretrained else "")
+    n_train = N_PLAIN if method.plain_colours else cfg.n_train
+    fields = [model] + ([options.loss] if hasattr(options, "loss") else []) + [str(n_train)]
     return "_".join(fields + [str(getattr(options, k)) for k in ("batch", "iters") if hasattr(options, k)])
+
+
+def official_uint8(image: np.ndarray) -> np.ndarray:
+    """8-bit values as the official code writes its outputs: ``np.uint8(x * 255)`` of float32
+    images in [0, 1], i.e. truncated, not rounded (values outside [0, 1], which no method
+    predicts, are clipped first).
+
+    >>> official_uint8(np.array([0.0, 0.5, 0.999, 1.0], np.float32)).tolist()
+    [0, 127, 254, 255]
+    """
+    return (np.clip(np.asarray(image, np.float32), 0, 1) * np.float32(255)).astype(np.uint8)
 
 
 def write_official_outputs(run_dir: Path, data: SetupData, dest: Path, tag: str) -> None:
     """Write a run's π†(x̃) of the test captures to ``dest/cam/cmp/<tag>`` and its π†(y) of the
-    test images y (the test frames) to ``dest/prj/cmp/<tag>``, as ``img_XXXX.png`` (8 bit)."""
+    test images y (the test frames) to ``dest/prj/cmp/<tag>``, as ``img_XXXX.png`` with the
+    official code's 8-bit values (:func:`official_uint8`), so the files are byte for byte those the
+    official code would write from the same predictions."""
     method, config = load_run(run_dir)
     batch = config["train"].get("eval_batch", 64)
     for kind, inputs in (("cam", data.test.captures), ("prj", data.test.frames)):
         frames = method.predict(inputs, data.surface, batch_size=batch).permute(0, 2, 3, 1).numpy()
         for i, frame in enumerate(frames, start=1):
-            write_png(dest / kind / "cmp" / tag / image_name(i), to_uint8(frame))
+            write_png(dest / kind / "cmp" / tag / image_name(i), official_uint8(frame))
 
 
 def official_complete(dest: Path, tag: str, n: int) -> bool:

@@ -194,6 +194,9 @@ class Method(abc.ABC):
     official_name: ClassVar[str]
     """The model's name in the official CompenNet code's output folders and the paper's tables
     (``CompenNet``, ``TPS_textured``, …): no spaces or slashes."""
+    plain_colours: ClassVar[bool] = False
+    """The method fits the 125 plain-colour pairs of ``ref`` whatever the number of training pairs
+    (TPS, Nayar); its official tag then names 125."""
 
     @abc.abstractmethod
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,

@@ -322,6 +322,7 @@ class TPSMethod(Method):
     name = "tps"
     official_name = "TPS"
     options = TPSOptions
+    plain_colours = True
 
     def __init__(self, device: str = "auto"):
         self.device = resolve_device(device)
@@ -438,6 +439,7 @@ class TPSTexturedMethod(TPSMethod):
     name = "tps-textured"
     official_name = "TPS_textured"
     options = TPSTexturedOptions
+    plain_colours = False
 
     def training_pairs(self, data: SetupData, cfg: TrainConfig) -> PairSet:
         """All training pairs, or a seeded random subset of ``max_samples`` of them (sorted)."""
