@@ -50,6 +50,40 @@ def test_kaiming_normal_on_conv2d_only():
     assert t.abs().max().item() <= 1 / math.sqrt(64 * 4) + 1e-7
 
 
+def official_initial_state(seed: int) -> dict[str, torch.Tensor]:
+    """The initial weights of the official CompenNet class for ``seed``, built as its constructor
+    builds them: the layers created in its order (backbone conv1-conv5, surface branch
+    conv1_s-conv4_s, transConv1, transConv2, conv6, skipConv1's three convolutions, skipConv2,
+    skipConv3), each drawing PyTorch's default initialisation, then Kaiming-normal weights for every
+    Conv2d (not ConvTranspose2d) in module order."""
+    torch.manual_seed(seed)
+    layers = {}
+    for name, shape in (("conv1", (3, 32, 3, 2, 1)), ("conv2", (32, 64, 3, 2, 1)),
+                        ("conv3", (64, 128, 3, 1, 1)), ("conv4", (128, 256, 3, 1, 1)),
+                        ("conv5", (256, 128, 3, 1, 1)), ("conv1_s", (3, 32, 3, 2, 1)),
+                        ("conv2_s", (32, 64, 3, 2, 1)), ("conv3_s", (64, 128, 3, 1, 1)),
+                        ("conv4_s", (128, 256, 3, 1, 1))):
+        layers[name] = torch.nn.Conv2d(*shape)
+    layers["transConv1"] = torch.nn.ConvTranspose2d(128, 64, 2, 2, 0)
+    layers["transConv2"] = torch.nn.ConvTranspose2d(64, 32, 2, 2, 0)
+    layers["conv6"] = torch.nn.Conv2d(32, 3, 3, 1, 1)
+    for i in (0, 2, 4):
+        layers[f"skipConv1.{i}"] = torch.nn.Conv2d(3, 3, 3, 1, 1)
+    layers["skipConv2"] = torch.nn.Conv2d(32, 64, 1, 1, 0)
+    layers["skipConv3"] = torch.nn.Conv2d(64, 128, 1, 1, 0)
+    for layer in layers.values():
+        if type(layer) is torch.nn.Conv2d:
+            torch.nn.init.kaiming_normal_(layer.weight)
+    return {f"{name}.{k}": v for name, layer in layers.items() for k, v in layer.state_dict().items()}
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_seed_gives_the_official_initial_weights(seed):
+    ours, official = seeded(seed=seed).state_dict(), official_initial_state(seed)
+    assert ours.keys() == official.keys()
+    assert all(torch.equal(ours[k], official[k]) for k in official)
+
+
 def test_init_is_deterministic_under_manual_seed():
     a, b, c = seeded(seed=0).state_dict(), seeded(seed=0).state_dict(), seeded(seed=1).state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a)

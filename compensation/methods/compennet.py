@@ -139,7 +139,8 @@ class CompenNet(nn.Module):
     -----
     As in the official code, Conv2d weights get Kaiming-normal initialisation (seed with
     :func:`torch.manual_seed` for a reproducible network); transposed convolutions and all biases
-    keep PyTorch's default initialisation.
+    keep PyTorch's default initialisation. The same seed gives the official network's initial
+    weights (the layers are created and initialised in its order).
     """
 
     def __init__(self, surface: bool = True):
@@ -147,20 +148,23 @@ class CompenNet(nn.Module):
         self.surface = surface
         self.relu = nn.ReLU(inplace=True)  # every input is a fresh sum or convolution output
 
+        # The layers are created in the official code's order, so that one seed gives the official
+        # network's initial weights (each layer draws its default initialisation when created).
         self.conv1 = nn.Conv2d(3, 32, 3, 2, 1)
         self.conv2 = nn.Conv2d(32, 64, 3, 2, 1)
         self.conv3 = nn.Conv2d(64, 128, 3, 1, 1)
         self.conv4 = nn.Conv2d(128, 256, 3, 1, 1)
         self.conv5 = nn.Conv2d(256, 128, 3, 1, 1)
-        self.transConv1 = nn.ConvTranspose2d(128, 64, 2, 2, 0)
-        self.transConv2 = nn.ConvTranspose2d(64, 32, 2, 2, 0)
-        self.conv6 = nn.Conv2d(32, 3, 3, 1, 1)
 
         if surface:
             self.conv1_s = nn.Conv2d(3, 32, 3, 2, 1)
             self.conv2_s = nn.Conv2d(32, 64, 3, 2, 1)
             self.conv3_s = nn.Conv2d(64, 128, 3, 1, 1)
             self.conv4_s = nn.Conv2d(128, 256, 3, 1, 1)
+
+        self.transConv1 = nn.ConvTranspose2d(128, 64, 2, 2, 0)
+        self.transConv2 = nn.ConvTranspose2d(64, 32, 2, 2, 0)
+        self.conv6 = nn.Conv2d(32, 3, 3, 1, 1)
 
         self.skipConv1 = nn.Sequential(
             nn.Conv2d(3, 3, 3, 1, 1), self.relu,
