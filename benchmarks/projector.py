@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from sim import camera, images, projector, seeds
-from sim.render import lens_for
+from sim.projector import lens_for
 from sim.setup import parse_setup
 
 PAPER = {

@@ -297,7 +297,8 @@ class Probe:
         uint8 projector frame per class.
     floors, floors_encoded : dict[str, float]
         The camera's RMS noise per class: linear signal units, and encoded values in [0, 1]
-        (a real 8-bit noisy capture of the reference against its noiseless encoding).
+        (a real 8-bit noisy capture of the reference by the sensor alone,
+        :func:`sim.camera.without_optics`, against its noiseless encoding).
     reference_seconds : float
         Wall time of one reference capture (both renders), seconds; the first frame, which
         compiles the kernels, is left out when there are others.
@@ -329,8 +330,7 @@ class Probe:
             signal = camera.sensor_signal(mean, cfg.exposure, cfg.white_balance)
             self.floors[k] = noise_floor(signal, cfg)
             rng = seeds.noise_rng(setup.render.seed, seeds.REFERENCE, i)
-            sensor = replace(cfg, psf_sigma=0.0, distortion=0.0, vignetting=0.0)  # noise, not optics
-            noisy = camera.capture(mean, sensor, rng).astype(np.float64) / 255
+            noisy = camera.capture(mean, camera.without_optics(cfg), rng).astype(np.float64) / 255
             clean = camera.encode(signal.astype(np.float64), cfg.response)
             self.floors_encoded[k] = float(np.sqrt(np.mean((noisy - clean) ** 2)))
         self.reference_seconds = float(np.mean(seconds[1:] or seconds))  # the first one compiles

@@ -12,8 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from sim import geometry, projector, scene, seeds, surfaces
-from sim.errors import ProcamError
+from sim import projector, scene, seeds
 from sim.io import to_float
 from sim.setup import ProjectorConfig, RegistrationConfig, Setup, dump_setup
 from sim.variant import use_variant
@@ -41,65 +40,6 @@ def _ambient_key(setup: Setup, fidelity: str, variant: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def throw_distance(setup: Setup) -> float:
-    """Distance (metres) from the projector to the surface along its optical axis."""
-    p = geometry.Pinhole.from_config(setup.projector, (1, 1))
-    axis = p.frame()[:, 2]
-    t, _ = surfaces.surface_for(setup.surface).intersect(p.position, axis[None])
-    if not np.isfinite(t[0]):
-        return float(np.linalg.norm(p.look_at - p.position))
-    return float(t[0])
-
-
-def lens_for(setup: Setup) -> projector.Lens:
-    """The projector's lens (:class:`sim.projector.Lens`) in a setup.
-
-    The defocus disk of each pixel follows the depth of the surface point its ray hits
-    (:meth:`sim.surfaces.base.Surface.projector_depth`; a pixel that misses the surface takes the
-    median depth of those that hit). The padding covers the widest blur: the Gaussian's reach
-    plus the largest disk radius over the padded grid.
-
-    Parameters
-    ----------
-    setup : Setup
-        The setup (``projector.psf_sigma``, ``aperture``, ``focus_distance``, pose; surface).
-
-    Returns
-    -------
-    projector.Lens
-        A sharp lens without padding when ``psf_sigma`` and ``aperture`` are 0; no defocus map
-        when the surface lies in focus everywhere (a plane at the focus distance, head-on).
-    """
-    p = setup.projector
-    w, h = p.resolution
-    reach = projector.gaussian_radius(p.psf_sigma)
-    if p.aperture == 0:
-        return projector.Lens((w, h), reach, p.psf_sigma)
-    surface = surfaces.surface_for(setup.surface)
-    pad, diameters = 0, None
-    for _ in range(4):  # the padded grid's own disks may need a little more padding
-        grid = geometry.Pinhole.from_config(p, (w + 2 * pad, h + 2 * pad))
-        grid = replace(grid, fov=projector.Lens((w, h), pad).fov(p.fov), aspect=None)
-        depth = surface.projector_depth(grid)
-        hit = np.isfinite(depth) & (depth > 0)
-        fill = float(np.median(depth[hit])) if hit.any() else p.focus_distance
-        diameters = projector.defocus_blur_diameter_px(
-            p.aperture, p.focus_distance, np.where(hit, depth, fill), p.fov, w)
-        need = reach + projector.disk_radius(float(diameters.max()))
-        if need <= pad:
-            break
-        pad = need
-    else:
-        raise ProcamError(f"setup {setup.name!r}: the projector's defocus padding does not settle "
-                          f"(projector.aperture = {p.aperture} m is far too large for the scene)")
-    if pad > need:  # crop to the padding needed
-        c = pad - need
-        diameters, pad = diameters[c:-c, c:-c], need
-    if float(diameters.max()) < projector.SHARP_DIAMETER:  # in focus everywhere: a point each
-        return projector.Lens((w, h), pad, p.psf_sigma)
-    return projector.Lens((w, h), pad, p.psf_sigma, np.ascontiguousarray(diameters, np.float32))
-
-
 class Renderer:
     """Renders linear radiance (camera resolution, RGB float32) of one setup.
 
@@ -118,7 +58,8 @@ class Renderer:
     Attributes
     ----------
     lens : sim.projector.Lens
-        The projector's lens (:func:`lens_for`); the emitter's texture is its padded grid.
+        The projector's lens (:func:`sim.projector.lens_for`); the emitter's texture is its
+        padded grid.
     defocus_px : float
         Defocus disk diameter (projector pixels) where the optical axis meets the surface (each
         pixel's own disk is in ``lens.diameters``).
@@ -133,14 +74,14 @@ class Renderer:
         self.fidelity = fidelity or scene.resolve_fidelity(setup)
         self.spp = int(spp or setup.render.spp)
         self.albedo = scene.albedo_texture(setup)
-        self.lens = lens_for(setup)
+        self.lens = projector.lens_for(setup)
         self._scene = mi.load_dict(scene.projector_scene(setup, self.albedo, self.fidelity, self.spp,
                                                          self.lens.pad, self.lens.fov(setup.projector.fov)))
         self._params = mi.traverse(self._scene)
         self._ambient: np.ndarray | None = None
         p = setup.projector
         self.defocus_px = projector.defocus_blur_diameter_px(
-            p.aperture, p.focus_distance, throw_distance(setup), p.fov, p.resolution[0])
+            p.aperture, p.focus_distance, projector.throw_distance(setup), p.fov, p.resolution[0])
 
     def emit(self, frame: np.ndarray) -> np.ndarray:
         """Relative linear irradiance the projector emits for an input frame.

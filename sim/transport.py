@@ -43,7 +43,8 @@ import torch
 from sim import geometry, seeds, surfaces
 from sim.errors import ProcamError, SetupError
 from sim.io import atomic_write
-from sim.render import Renderer, lens_for
+from sim.projector import lens_for
+from sim.render import Renderer
 from sim.setup import Setup, dump_setup
 
 MAX_SPACING = 12
@@ -89,7 +90,7 @@ def _aperture_offsets(radius: float) -> np.ndarray:
 
 
 def emitter_pinhole(setup: Setup) -> geometry.Pinhole:
-    """The projector's emitter as a pinhole: the lens's padded grid (:func:`sim.render.lens_for`),
+    """The projector's emitter as a pinhole: the lens's padded grid (:func:`sim.projector.lens_for`),
     the panel itself when the lens is sharp."""
     p = setup.projector
     lens = lens_for(setup)

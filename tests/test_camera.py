@@ -115,7 +115,7 @@ def noise_version(request, monkeypatch):
     from sim.variant import llvm_usable
     if request.param == 3 and not llvm_usable():
         pytest.skip("Dr.Jit's LLVM backend is not usable here")
-    monkeypatch.setattr(noise, "noise_version", lambda: request.param)
+    monkeypatch.setattr(noise, "stream_version", lambda: request.param)
     return request.param
 
 

@@ -13,7 +13,8 @@ from conftest import tiny_setup
 from sim import projector, registration, seeds
 from sim.capture import Simulator
 from sim.errors import SetupError
-from sim.render import Renderer, lens_for
+from sim.projector import lens_for
+from sim.render import Renderer
 from sim.transport import TransportRenderer
 
 

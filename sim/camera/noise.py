@@ -1,8 +1,9 @@
 """Poisson-Gaussian sensor noise: the noisy linear signal and its standard deviation.
 
-:func:`expose` draws the noise in one of two versions of the streams (:func:`noise_version`,
-recorded in a dataset's ``render.json`` and ``meta.json``); both are exact Poisson and Gaussian
-draws, only the numbers differ:
+:func:`expose` draws the noise in one of two versions of the streams (:func:`stream_version`,
+which gives the camera's :func:`~sim.camera.chain.noise_version` recorded in a dataset's
+``render.json`` and ``meta.json``); both are exact Poisson and Gaussian draws, only the numbers
+differ:
 
 * **3** (where Dr.Jit's LLVM backend runs, i.e. wherever procam renders on the CPU): the whole
   image in one compiled kernel on all cores (:mod:`sim.camera.kernel`), value i from its own
@@ -22,11 +23,11 @@ import numpy as np
 from sim.camera.threads import BLOCK, blockwise, run
 
 
-def noise_version() -> int:
-    """Version of the camera-noise streams in this process: 3 where Dr.Jit's LLVM backend runs,
-    else 2 (see the module; :func:`sim.variant.llvm_usable` memoises the answer). Version 1 (no
-    longer drawn): ``Generator.poisson`` then ``Generator.normal`` over the whole image from the
-    capture's generator."""
+def stream_version() -> int:
+    """Version of the noise streams :func:`expose` draws in this process: 3 where Dr.Jit's LLVM
+    backend runs, else 2 (see the module; :func:`sim.variant.llvm_usable` memoises the answer).
+    Version 1 (no longer drawn): ``Generator.poisson`` then ``Generator.normal`` over the whole
+    image from the capture's generator."""
     from sim.variant import llvm_usable
 
     return 3 if llvm_usable() else 2
@@ -41,7 +42,7 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
     standard deviation ``read_noise`` per value when ``read_noise > 0``; clipped to [0, 1] and cast
     to float32; then ``convert`` (e.g. the 8-bit encoder), block by block. The variance
     before the clip is ``shot_noise * s + read_noise**2``. The streams are those of
-    :func:`noise_version` (see the module).
+    :func:`stream_version` (see the module).
 
     Parameters
     ----------
@@ -73,7 +74,7 @@ def expose(values: np.ndarray, exposure: float, gains, shot_noise: float, read_n
     if gains is not None:
         s *= np.asarray(gains, np.float32)
     np.maximum(s, 0.0, out=s)
-    if noisy and noise_version() == 3:
+    if noisy and stream_version() == 3:
         from sim.camera.kernel import noisy_signal
 
         x = noisy_signal(s, shot_noise, read_noise, int(rng.integers(2**64, dtype=np.uint64)))

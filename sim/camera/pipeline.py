@@ -68,7 +68,7 @@ def raw_signal(radiance: np.ndarray, cfg, rng: np.random.Generator | None) -> np
 
 
 def capture(radiance: np.ndarray, cfg, rng: np.random.Generator) -> np.ndarray:
-    """The whole camera: optics, sensor, processing, 8-bit image (see :mod:`sim.camera`).
+    """The whole camera: the stages of :data:`sim.camera.chain.STAGES` in order, to an 8-bit image.
 
     Parameters
     ----------

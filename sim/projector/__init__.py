@@ -1,0 +1,33 @@
+"""The projector outside Mitsuba: its scaler, photometry (response, black level, primaries
+mixing), lens (Gaussian point-spread function and depth-dependent defocus) and lamp (flicker and
+drift), stage by stage in :data:`~sim.projector.chain.STAGES`.
+
+A frame goes through the scaler to the native panel (:mod:`~sim.projector.scaler`), the
+response and mixing (:mod:`~sim.projector.photometry`) and the lens (:mod:`~sim.projector.lens`,
+built for a setup by :func:`lens_for`; its defocus in :mod:`~sim.projector.defocus`). The
+scaler and the response act on encoded values; everything after the response is linear in the
+emitted light, so it belongs to the light transport (the ``transport`` level's operator sees the
+lens's output). The lens's output is the panel padded by :attr:`Lens.pad` pixels of each side, so
+light it blurs past the panel's border is kept; Mitsuba's emitter is widened to match
+(:meth:`Lens.fov`).
+
+All outputs are *relative linear* irradiance: the projector's brightness is not applied here; the
+scene applies it as the scale of Mitsuba's ``projector`` emitter, and the lamp's per-capture
+brightness (:func:`lamp_gain`, :mod:`~sim.projector.lamp`) multiplies a capture's projector
+contribution.
+"""
+from sim.projector.chain import STAGES
+from sim.projector.defocus import (DEFOCUS_RELATIVE_STEP, DEFOCUS_STEP, SHARP_DIAMETER, defocus,
+                                   defocus_blur_diameter_px, defocus_levels, defocus_plan,
+                                   disk_kernel, disk_radius, varying_defocus)
+from sim.projector.lamp import lamp_gain
+from sim.projector.lens import Lens, gaussian_radius, lens_for, throw_distance
+from sim.projector.photometry import emitted_irradiance, projector_irradiance
+from sim.projector.scaler import frame_area, scale_to_panel
+
+__all__ = [
+    "DEFOCUS_RELATIVE_STEP", "DEFOCUS_STEP", "SHARP_DIAMETER", "STAGES", "Lens", "defocus",
+    "defocus_blur_diameter_px", "defocus_levels", "defocus_plan", "disk_kernel", "disk_radius",
+    "emitted_irradiance", "frame_area", "gaussian_radius", "lamp_gain", "lens_for",
+    "projector_irradiance", "scale_to_panel", "throw_distance", "varying_defocus",
+]

@@ -1,0 +1,154 @@
+"""The camera's and the projector's chains of stages: every key belongs to a stage, each flag is
+true of the stage's code, and what the flags give (the sensor alone, the streams version)."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from conftest import tiny_setup
+
+from sim import camera, projector, seeds
+from sim.camera import chain as camera_chain
+from sim.camera.noise import stream_version
+from sim.projector import chain as projector_chain
+from sim.setup import CameraConfig, ProjectorConfig
+from sim.stages import Stage, streams_version, switch_off
+
+CHAINS = {"camera": (camera_chain, CameraConfig), "projector": (projector_chain, ProjectorConfig)}
+
+
+@pytest.mark.parametrize("device", CHAINS)
+def test_every_key_is_rendered_or_read_by_exactly_one_stage(device):
+    chain, cls = CHAINS[device]
+    owners = [*chain.RENDERED, *(k for s in chain.STAGES for k in s.keys)]
+    assert sorted(owners) == sorted(f.name for f in dataclasses.fields(cls)), "each key once"
+    assert len({s.name for s in chain.STAGES}) == len(chain.STAGES)
+
+
+@pytest.mark.parametrize("device", CHAINS)
+def test_switching_a_stage_off_gives_valid_values(device):
+    """The values that switch a stage off are valid keys (schema defaults, mostly)."""
+    chain, cls = CHAINS[device]
+    base = cls()
+    for stage in chain.STAGES:
+        if stage.off:
+            off = switch_off(base, [stage])
+            assert all(getattr(off, k) == v for k, v in stage.off.items())
+
+
+def test_stage_rules():
+    with pytest.raises(ValueError, match="no streams version"):
+        Stage("x", (), "", streams=lambda: 1)
+    with pytest.raises(ValueError, match="must be able to be switched off"):
+        Stage("x", ("a",), "", optical=True)
+    with pytest.raises(ValueError, match="keys it does not read"):
+        Stage("x", ("a",), "", off={"b": 0})
+    with pytest.raises(ValueError, match="random, without a streams version"):
+        streams_version([Stage("x", (), "", random=True)])
+    with pytest.raises(ValueError, match="cannot be switched off"):
+        switch_off(CameraConfig(), [Stage("x", ("exposure",), "")])
+
+
+# ---------------------------------------------------------------------------------- camera
+
+HARDWARE = replace(CameraConfig(), resolution=(48, 32), psf_sigma=0.7, distortion=-0.05,
+                   vignetting=0.3, bayer="RGGB", jpeg_quality=90, white_balance=(1.1, 1.0, 0.9),
+                   shot_noise=1e-3, read_noise=2e-3)
+
+
+def test_the_optical_stages_are_what_the_fidelity_probe_switches_off():
+    assert [s.name for s in camera.STAGES if s.optical] == ["psf", "distortion", "vignetting"]
+    assert camera.without_optics(HARDWARE) == replace(HARDWARE, psf_sigma=0.0, distortion=0.0,
+                                                      vignetting=0.0)
+    rad = np.random.default_rng(1).uniform(0, 1, (32, 48, 3)).astype(np.float32)
+    assert camera.apply_optics(rad, camera.without_optics(HARDWARE)) is rad
+
+
+def test_the_noise_version_is_the_random_stages():
+    assert [s.name for s in camera.STAGES if s.random] == ["noise"]
+    assert camera.noise_version() == stream_version() in (2, 3)
+
+
+def _linear_camera_stage(name: str):
+    """The code of each camera stage flagged linear, alone."""
+    only = {k: 0.0 for k in ("psf_sigma", "distortion", "vignetting")}
+    optics = {"psf": {"psf_sigma": 0.7}, "distortion": {"distortion": -0.05}, "vignetting": {"vignetting": 0.3}}
+    if name in optics:
+        cfg = replace(HARDWARE, **{**only, **optics[name]})
+        return lambda x: camera.apply_optics(x, cfg)
+    return {"exposure": lambda x: camera.expose(x, 1.7, None, 0.0, 0.0, None),
+            "mosaic": lambda x: camera.mosaic(x, "RGGB"),
+            "white_balance": lambda x: x * np.float32([1.1, 1.0, 0.9])}[name]
+
+
+def test_stages_flagged_linear_are_linear():
+    rng = np.random.default_rng(2)
+    x, y = (rng.uniform(0, 0.5, (32, 48, 3)).astype(np.float32) for _ in range(2))
+    linear = [s.name for s in camera.STAGES if s.linear]
+    assert linear == ["psf", "distortion", "vignetting", "exposure", "mosaic", "white_balance"]
+    for name in linear:
+        f = _linear_camera_stage(name)
+        np.testing.assert_allclose(f(0.3 * x + 0.5 * y), 0.3 * f(x) + 0.5 * f(y), atol=1e-6, err_msg=name)
+
+
+def test_only_the_random_stages_draw():
+    """With every random stage switched off a capture does not depend on the generator, with
+    every other stage on; with the noise on it does."""
+    rad = np.random.default_rng(3).uniform(0, 0.8, (32, 48, 3)).astype(np.float32)
+    quiet = switch_off(HARDWARE, [s for s in camera.STAGES if s.random])
+    a, b = (camera.capture(rad, quiet, np.random.default_rng(seed)) for seed in (0, 1))
+    np.testing.assert_array_equal(a, b)
+    a, b = (camera.capture(rad, HARDWARE, np.random.default_rng(seed)) for seed in (0, 1))
+    assert not np.array_equal(a, b)
+
+
+def test_the_fidelity_probe_captures_with_the_sensor_alone(monkeypatch):
+    """What the fidelity probe switches off for its encoded noise floor is derived from the
+    optical flags."""
+    from sim.fidelity import Probe
+
+    seen = []
+    real = camera.capture
+    monkeypatch.setattr(camera, "capture", lambda rad, cfg, rng: seen.append(cfg) or real(rad, cfg, rng))
+    setup = tiny_setup(camera={"resolution": [16, 16], "psf_sigma": 0.6, "vignetting": 0.2,
+                               "distortion": 0.01})
+    Probe(setup, classes=("smooth",), reference_spp=4, window=None)
+    assert seen == [camera.without_optics(setup.camera)]
+    assert seen[0].psf_sigma == seen[0].distortion == seen[0].vignetting == 0.0
+
+
+# ---------------------------------------------------------------------------------- projector
+
+def test_projector_stages_after_the_lens_are_linear():
+    """The light transport runs after the lens (``defocus``): a capture is the lamp's gain times
+    the operator's output, exact only if every later stage is linear."""
+    names = [s.name for s in projector.STAGES]
+    assert names[:5] == ["scaler", "response", "mixing", "psf", "defocus"]
+    assert all(s.linear for s in projector.STAGES[names.index("defocus") + 1:])
+    assert [s.name for s in projector.STAGES if s.optical] == ["psf", "defocus"]
+
+
+def test_projector_stages_flagged_linear_are_linear():
+    rng = np.random.default_rng(4)
+    x, y = (rng.uniform(0, 1, (24, 24, 3)).astype(np.float32) for _ in range(2))
+    setup = tiny_setup(projector={"resolution": [24, 24], "psf_sigma": 0.8, "aperture": 0.02,
+                                  "focus_distance": 0.8})
+    lens = projector.lens_for(setup)
+    mix = ((1.0, 0.1, 0.0), (0.1, 1.0, 0.1), (0.0, 0.1, 1.0))
+    code = {"mixing": lambda v: projector.emitted_irradiance(v, 1.0, 0.0, mix),  # response off
+            "psf": lens.apply, "defocus": lens.apply,
+            "brightness": lambda v: 1.3 * v,  # the emitter's scale: Mitsuba's light is linear in it
+            "lamp": lambda v: projector.lamp_gain(replace(setup.projector, flicker=0.1, drift=0.05),
+                                                  0, seeds.TEST, 1) * v}
+    assert [s.name for s in projector.STAGES if s.linear] == list(code)
+    for name, f in code.items():
+        np.testing.assert_allclose(f(0.3 * x + 0.5 * y), 0.3 * f(x) + 0.5 * f(y), atol=1e-6, err_msg=name)
+
+
+def test_the_lamp_is_the_projector_stage_that_draws():
+    assert [s.name for s in projector.STAGES if s.random] == ["lamp"]
+    cfg = replace(ProjectorConfig(), flicker=0.1)
+    assert len({projector.lamp_gain(cfg, seed, seeds.TRAIN, 1) for seed in range(4)}) == 4
+    assert {projector.lamp_gain(ProjectorConfig(), seed, seeds.TRAIN, 1) for seed in range(4)} == {1.0}
