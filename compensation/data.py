@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,13 +29,10 @@ import torch
 
 from sim.errors import DatasetError
 from sim.io import read_png
+from sim.layout import (META_FILE, N_PLAIN, REF, SETUP_FILE, SURFACE_INDEX, TEST, TRAIN, capture_dir,
+                        image_name, image_number)
 
-N_PLAIN = 125
-"""Plain colour frames ``ref/img_0001.png`` … ``img_0125.png`` (5³ levels, black … white)."""
-SURFACE_INDEX = 125
-"""0-based position of the surface image s̃ in the sorted PNG names of ``cam/warp/ref``."""
-SPLITS = ("train", "test")
-_NAME = re.compile(r"img_(\d{4,})\.png")
+SPLITS = (TRAIN, TEST)
 
 
 @dataclass(frozen=True)
@@ -94,13 +90,13 @@ def image_indices(folder: Path) -> set[int]:
     """1-based indices of the ``img_XXXX.png`` files in ``folder`` (empty if it is missing)."""
     if not folder.is_dir():
         return set()
-    return {int(m.group(1)) for name in os.listdir(folder) if (m := _NAME.fullmatch(name))}
+    return {n for name in os.listdir(folder) if (n := image_number(name)) is not None}
 
 
 def _names(indices) -> str:
     """``img_0007.png, img_0311.png`` (at most ten names, then a count)."""
     indices = sorted(indices)
-    text = ", ".join(f"img_{i:04d}.png" for i in indices[:10])
+    text = ", ".join(image_name(i) for i in indices[:10])
     return text + (f" and {len(indices) - 10} more" if len(indices) > 10 else "")
 
 
@@ -113,7 +109,7 @@ def frames_root(setup_dir: Path) -> Path:
         If no folder above ``setup_dir`` holds both.
     """
     for folder in Path(setup_dir).absolute().parents:
-        if (folder / "train").is_dir() and (folder / "test").is_dir():
+        if (folder / TRAIN).is_dir() and (folder / TEST).is_dir():
             return folder
     raise DatasetError(f"{setup_dir}: no folder above it holds the projector frames (train/ and "
                        "test/ beside ref/: the dataset root)")
@@ -132,7 +128,7 @@ def surface_path(setup_dir: Path) -> Path:
     DatasetError
         If the folder holds fewer than 126 PNG files.
     """
-    ref = Path(setup_dir) / "cam" / "warp" / "ref"
+    ref = capture_dir(setup_dir, REF)
     names = sorted(n for n in os.listdir(ref) if n.endswith(".png")) if ref.is_dir() else []
     if len(names) <= SURFACE_INDEX:
         raise DatasetError(f"{ref}: {len(names)} PNG images; the surface image s̃ (capture of the "
@@ -153,12 +149,12 @@ def check_finished(setup_dir: Path) -> dict:
     """
     if not setup_dir.is_dir():
         raise DatasetError(f"{setup_dir}: setup folder not found (render it with `procam render`)")
-    meta_file = setup_dir / "meta.json"
+    meta_file = setup_dir / META_FILE
     if not meta_file.exists():
-        if (setup_dir / "setup.toml").exists():
+        if (setup_dir / SETUP_FILE).exists():
             raise DatasetError(f"{setup_dir}: setup is not finished (no meta.json); "
                                "re-run `procam render` to complete it")
-        if not (setup_dir / "cam" / "warp").is_dir():
+        if not capture_dir(setup_dir).is_dir():
             raise DatasetError(f"{setup_dir}: not a setup (no cam/warp captures, no meta.json)")
         return {}
     try:
@@ -183,23 +179,23 @@ def available_pairs(setup_dir: Path, split: str, meta: dict, root: Path) -> int:
         Naming the folder and the missing files if a capture or a frame of 1 … n is absent.
     """
     frame_dir = root / split
-    capture_dir = setup_dir / "cam" / "warp" / split
+    captures_dir = capture_dir(setup_dir, split)
     frames = image_indices(frame_dir)
-    captures = image_indices(capture_dir)
+    captures = image_indices(captures_dir)
     if not frames:
         raise DatasetError(f"{frame_dir}: no projector frames (img_XXXX.png) found")
     counted = meta.get("counts", {}).get(split)
     expected = int(counted) if counted is not None else max(frames)
     wanted = set(range(1, expected + 1))
     if missing := wanted - frames:
-        source = (f"{setup_dir / 'meta.json'} lists {expected}" if counted is not None
+        source = (f"{setup_dir / META_FILE} lists {expected}" if counted is not None
                   else f"they are numbered up to {expected}")
         raise DatasetError(f"{frame_dir}: {len(frames)} frames but {source}; missing {_names(missing)}")
     if missing := wanted - captures:
         have = len(captures & wanted)
         source = (f"{frame_dir} has {expected} frames" if counted is None or expected == len(frames)
-                  else f"{setup_dir / 'meta.json'} lists {expected}")
-        raise DatasetError(f"{capture_dir}: {have} captures but {source}; missing {_names(missing)}")
+                  else f"{setup_dir / META_FILE} lists {expected}")
+        raise DatasetError(f"{captures_dir}: {have} captures but {source}; missing {_names(missing)}")
     return expected
 
 
@@ -259,7 +255,7 @@ def load_setup_data(setup_dir: str | os.PathLike, n_train: int | None = None,
     meta = check_finished(setup_dir)
     root = frames_root(setup_dir)
 
-    wanted = {"train": n_train, "test": n_test}
+    wanted = {TRAIN: n_train, TEST: n_test}
     counts = {}
     for split in SPLITS:
         have = available_pairs(setup_dir, split, meta, root)
@@ -267,14 +263,14 @@ def load_setup_data(setup_dir: str | os.PathLike, n_train: int | None = None,
         if n < 1:
             raise DatasetError(f"{setup_dir}: n_{split}={n}: expected at least 1 pair")
         if n > have:
-            raise DatasetError(f"{setup_dir / 'cam' / 'warp' / split}: n_{split}={n} asked for but "
+            raise DatasetError(f"{capture_dir(setup_dir, split)}: n_{split}={n} asked for but "
                                f"the setup has only {have} {split} pairs")
         counts[split] = n
-    ref_frames = image_indices(root / "ref")
-    ref_captures = image_indices(setup_dir / "cam" / "warp" / "ref")
+    ref_frames = image_indices(root / REF)
+    ref_captures = image_indices(capture_dir(setup_dir, REF))
     plain = set(range(1, N_PLAIN + 1))
-    for folder, present in ((root / "ref", ref_frames),
-                            (setup_dir / "cam" / "warp" / "ref", ref_captures)):
+    for folder, present in ((root / REF, ref_frames),
+                            (capture_dir(setup_dir, REF), ref_captures)):
         if missing := plain - present:
             raise DatasetError(f"{folder}: {len(present & plain)} of the {N_PLAIN} plain colour "
                                f"images; missing {_names(missing)}")
@@ -287,11 +283,11 @@ def load_setup_data(setup_dir: str | os.PathLike, n_train: int | None = None,
                            "height divisible by 4 (render at another --size)")
 
     def pairs(split: str, n: int) -> PairSet:
-        names = [f"img_{i:04d}.png" for i in range(1, n + 1)]
-        return PairSet(_read_stack([setup_dir / "cam" / "warp" / split / f for f in names],
+        names = [image_name(i) for i in range(1, n + 1)]
+        return PairSet(_read_stack([capture_dir(setup_dir, split) / f for f in names],
                                    surface_file, surface.shape),
                        _read_stack([root / split / f for f in names], surface_file, surface.shape))
 
     return SetupData(name=setup_name(setup_dir), setup_dir=setup_dir,
-                     train=pairs("train", counts["train"]), test=pairs("test", counts["test"]),
-                     ref=pairs("ref", N_PLAIN), surface=to_tensor(surface[None]))
+                     train=pairs(TRAIN, counts[TRAIN]), test=pairs(TEST, counts[TEST]),
+                     ref=pairs(REF, N_PLAIN), surface=to_tensor(surface[None]))

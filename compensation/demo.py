@@ -25,6 +25,7 @@ from compensation.training.config import PROFILES
 from compensation.experiments.runs import SCORES, load_run, train_run
 from sim.dataset import FrameSpec, write_setup
 from sim.io import write_json, write_png
+from sim.layout import SETUP_FILE
 from sim.setup import load_setup, scene_path
 
 PROFILE = "quick"
@@ -163,7 +164,7 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
              "seeds": sorted({r["seed"] for r in rows}), "n_train": prof["n_train"],
              "n_test": prof["n_test"], "size": [prof["size"]] * 2, "profile": PROFILE,
              "overrides": {k: v for k, v in overrides.items() if v is not None},
-             "setups": {setup.name: f"data/{setup.name}/setup.toml"}}
+             "setups": {setup.name: f"data/{setup.name}/{SETUP_FILE}"}}
     write_study_record(out, study)
     write_results(out, (), [{**base, **r} for r in rows])
 

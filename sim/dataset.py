@@ -1,17 +1,9 @@
-"""Writing a dataset in the CompenNet code's folder layout (below) — atomically and resumably.
+"""Writing a dataset in the CompenNet code's folder layout (:mod:`sim.layout`) — atomically and
+resumably.
 
-```
-DATA_ROOT/.lock                              held (flock) by the one render writing the root
-DATA_ROOT/frames.json                        how the shared projector frames are made: written first
-DATA_ROOT/{ref,train,test}/img_XXXX.png      projector frames shared by all setups of the root
-DATA_ROOT/<setup>/setup.toml                 the fully resolved setup
-DATA_ROOT/<setup>/render.json                how its captures are rendered: written before the first
-DATA_ROOT/<setup>/registration/exact_map.npz      ground truth: the exact map's xy and mask
-DATA_ROOT/<setup>/registration/registration.json  the map used, the homography and its error
-DATA_ROOT/<setup>/cam/{raw,warp}/{ref,train,test}/img_XXXX.png
-DATA_ROOT/<setup>/meta.json                  written last: its presence marks a finished setup
-```
-Every input is checked before anything is written (:func:`check_render`, the projector frames
+The root's lock is held (flock) by the one render writing it; ``frames.json`` is written before
+the shared projector frames, a setup's ``render.json`` before its first capture and its
+``meta.json`` last. Every input is checked before anything is written (:func:`check_render`, the projector frames
 read). Every PNG is written to a temporary file and renamed, so a killed run leaves no truncated
 image; a re-run refuses a root or setup folder whose records (``frames.json``, ``setup.toml``,
 ``render.json``) differ from what it would write, rewrites any file that is damaged or missing and
@@ -35,30 +27,15 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from sim import camera, images, registration, seeds
+from sim import camera, images, layout, registration, seeds
 from sim.capture import Simulator, capture_workers, pipelined
 from sim.errors import DatasetError, SetupError
 from sim.fidelity import check_level, check_spp, describe, resolve
 from sim.io import (atomic_write, intact_png, read_json, remove_temporaries, write_json, write_png,
                     write_text)
+from sim.layout import REF, TEST, TRAIN, image_name
 from sim.setup import Setup, dump_setup, load_setup
 from sim.variant import choose_variant
-
-N_REF = 126
-"""125 plain colours (0001 black … 0125 white) and the gray surface frame 0126."""
-SURFACE_INDEX = 126
-SPLITS = ("ref", "train", "test")
-REGISTRATION_DIR = "registration"
-"""A setup folder's registration records (:func:`write_registration`)."""
-RECORD = "render.json"
-"""A setup folder's record of how its captures are rendered (:func:`check_render`'s keys plus the
-resolved ``fidelity`` and ``spp``), written before the first capture."""
-
-
-def image_name(index: int) -> str:
-    """File name of the 1-based image ``index``: ``img_0001.png``."""
-    return f"img_{index:04d}.png"
-
 
 @dataclass(frozen=True)
 class FrameSpec:
@@ -133,10 +110,10 @@ def projector_frames(spec: FrameSpec) -> dict[str, np.ndarray]:
                    + [images.plain_frame(np.full(3, images.GRAY_LEVEL, np.uint8), spec.size)])
     if spec.images_dir:
         user = images.load_image_folder(spec.images_dir, spec.n_train + spec.n_test, spec.size)
-        return {"ref": ref, "train": user[:spec.n_train], "test": user[spec.n_train:]}
-    return {"ref": ref,
-            "train": images.projector_frames(spec.n_train, spec.size, spec.seed, seeds.TRAIN_FRAMES),
-            "test": images.projector_frames(spec.n_test, spec.size, spec.seed, seeds.TEST_FRAMES)}
+        return {REF: ref, TRAIN: user[:spec.n_train], TEST: user[spec.n_train:]}
+    return {REF: ref,
+            TRAIN: images.projector_frames(spec.n_train, spec.size, spec.seed, seeds.TRAIN_FRAMES),
+            TEST: images.projector_frames(spec.n_test, spec.size, spec.seed, seeds.TEST_FRAMES)}
 
 
 def _read_frames_manifest(marker: Path) -> dict:
@@ -165,7 +142,7 @@ def _read_frames_manifest(marker: Path) -> dict:
 def _check_frames_manifest(root: Path, spec: FrameSpec) -> dict | None:
     """The root's ``frames.json`` (None if there is none yet), refused unless its frames are made
     as ``spec`` makes them."""
-    marker = root / "frames.json"
+    marker = root / layout.FRAMES_FILE
     if not marker.exists():
         return None
     manifest = _read_frames_manifest(marker)
@@ -201,7 +178,7 @@ def write_frames(root: Path, spec: FrameSpec, frames: dict[str, np.ndarray]) -> 
     counts = {k: len(v) for k, v in frames.items()}
     if manifest is not None:
         counts = {k: max(v, manifest["counts"].get(k, 0)) for k, v in counts.items()}
-    write_json(root / "frames.json", {"source": spec.source(), "counts": counts})
+    write_json(root / layout.FRAMES_FILE, {"source": spec.source(), "counts": counts})
     for split, stack in frames.items():
         for i, frame in enumerate(stack, start=1):
             path = root / split / image_name(i)
@@ -209,7 +186,7 @@ def write_frames(root: Path, spec: FrameSpec, frames: dict[str, np.ndarray]) -> 
             if old is None:
                 write_png(path, frame)
             elif not np.array_equal(old, frame):
-                raise DatasetError(f"{path}: holds another frame than {root / 'frames.json'} "
+                raise DatasetError(f"{path}: holds another frame than {root / layout.FRAMES_FILE} "
                                    f"describes ({spec.source()}); use another --out")
 
 
@@ -223,7 +200,7 @@ def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
     Returns
     -------
     dict
-        What identifies the captures, as :data:`RECORD` holds it: ``variant``, ``width``,
+        What identifies the captures, as :data:`~sim.layout.RECORD_FILE` holds it: ``variant``, ``width``,
         ``height``, ``frames``, ``noise_version`` (of the camera-noise streams) and, unless the
         level is ``auto`` (resolved by measuring), ``fidelity`` and ``spp``.
 
@@ -245,7 +222,7 @@ def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
 
 
 def _read_record(path: Path) -> dict:
-    """The :data:`RECORD` keys of a ``render.json`` (or of the ``meta.json`` of a setup rendered
+    """The :data:`~sim.layout.RECORD_FILE` keys of a ``render.json`` (or of the ``meta.json`` of a setup rendered
     before render.json was written), a size of the older form as ``width`` and ``height``, and
     ``noise_version`` 1 where the file predates the versioned camera noise.
 
@@ -310,15 +287,16 @@ def _same_setup(setup_file: Path, setup: Setup) -> bool:
 
 def _changes(out: Path, setup: Setup, expected: dict) -> list[str]:
     """Why the captures in a setup folder cannot be resumed by this render (empty: they can)."""
-    setup_file = out / "setup.toml"
+    setup_file = out / layout.SETUP_FILE
     changes = []
     if setup_file.exists() and not _same_setup(setup_file, setup):
         changes.append(f"{setup_file}: the folder holds captures of a different setup")
-    record_file = next((f for f in (out / RECORD, out / "meta.json") if f.exists()), None)
+    record_file = next((f for f in (out / layout.RECORD_FILE, out / layout.META_FILE) if f.exists()), None)
     if record_file is not None:
         changes += _differences(record_file, _read_record(record_file), expected)
-    elif (out / "cam").exists():
-        changes.append(f"{out / 'cam'}: captures without a record ({RECORD}) of how they were rendered")
+    elif (out / layout.CAM).exists():
+        changes.append(f"{out / layout.CAM}: captures without a record ({layout.RECORD_FILE}) of how they "
+                       "were rendered")
     return changes
 
 
@@ -326,11 +304,11 @@ def _clear(out: Path) -> None:
     """Remove a setup folder's captures and records (the transport cache, keyed by setup, spp and
     variant, stays). ``meta.json`` goes first and the record last, so that a run killed here
     leaves a folder that is unfinished and still refused without ``--overwrite``."""
-    (out / "meta.json").unlink(missing_ok=True)
-    for folder in ("cam", REGISTRATION_DIR):
+    (out / layout.META_FILE).unlink(missing_ok=True)
+    for folder in (layout.CAM, layout.REGISTRATION_DIR):
         if (out / folder).exists():
             shutil.rmtree(out / folder)
-    (out / RECORD).unlink(missing_ok=True)
+    (out / layout.RECORD_FILE).unlink(missing_ok=True)
 
 
 @contextmanager
@@ -343,7 +321,7 @@ def root_lock(root: Path) -> Iterator[None]:
     DatasetError
         If the root cannot be created or written, or another process holds the lock.
     """
-    lock = root / ".lock"
+    lock = root / layout.LOCK_FILE
     try:
         root.mkdir(parents=True, exist_ok=True)
         fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
@@ -380,12 +358,12 @@ def write_registration(folder: Path, setup: Setup, reg: registration.Registratio
     camera sees. ``folder/registration.json`` holds
     :meth:`sim.registration.Registration.record`.
     """
-    if not _holds_map(folder / "exact_map.npz", reg.exact):
+    if not _holds_map(folder / layout.EXACT_MAP_FILE, reg.exact):
         buffer = io.BytesIO()
         np.savez(buffer, xy=reg.exact.xy, mask=reg.exact.mask)
-        atomic_write(folder / "exact_map.npz", buffer.getvalue())
+        atomic_write(folder / layout.EXACT_MAP_FILE, buffer.getvalue())
     record = reg.record(setup)
-    write_json(folder / "registration.json", record)
+    write_json(folder / layout.REGISTRATION_FILE, record)
     return record
 
 
@@ -417,7 +395,7 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
 
     Nothing is written before every input is checked (:func:`check_render`, the projector frames
     made or read). Under the root's lock (:func:`root_lock`) the root's and the folder's records
-    are compared with this render; then ``frames.json`` and :data:`RECORD` are written before the
+    are compared with this render; then ``frames.json`` and ``render.json`` are written before the
     files they describe, and a capture is kept only if its file is intact
     (:func:`sim.io.intact_png`).
 
@@ -462,18 +440,18 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         if changes and not overwrite:
             raise DatasetError("; ".join(changes) + "; choose another --out or pass --overwrite to "
                                "render it again")
-        meta_file = out / "meta.json"
+        meta_file = out / layout.META_FILE
         if not changes and not overwrite and meta_file.exists() and all(
                 _meta_counts(meta_file).get(k, 0) >= n for k, n in counts.items()):
             write_frames(root, spec, frames)
             return out
-        for folder in (*(root / split for split in SPLITS), out):
+        for folder in (*(root / split for split in layout.SPLITS), out):
             remove_temporaries(folder)
         if changes:
             _clear(out)
         meta_file.unlink(missing_ok=True)  # more captures asked for: no longer finished
         write_frames(root, spec, frames)
-        write_text(out / "setup.toml", dump_setup(setup))
+        write_text(out / layout.SETUP_FILE, dump_setup(setup))
         return _render(out, setup, spec, frames, fidelity, spp, expected, overwrite, progress)
 
 
@@ -485,20 +463,22 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
     t_start = time.perf_counter()
     sim = Simulator(setup, spec.size, fidelity, spp, cache_dir=out / "cache")
     record = {**expected, "fidelity": sim.choice.level, "spp": sim.choice.spp}
-    if (out / RECORD).exists():  # ``auto``: the resolved level and spp are known only now
-        if changes := _differences(out / RECORD, _read_record(out / RECORD), record):
+    record_file = out / layout.RECORD_FILE
+    if record_file.exists():  # ``auto``: the resolved level and spp are known only now
+        if changes := _differences(record_file, _read_record(record_file), record):
             if not overwrite:
                 raise DatasetError("; ".join(changes) + "; choose another --out or pass "
                                    "--overwrite to render it again")
             _clear(out)
-    write_json(out / RECORD, record)
-    registration_record = write_registration(out / REGISTRATION_DIR, setup, sim.registration)
+    write_json(record_file, record)
+    registration_record = write_registration(out / layout.REGISTRATION_DIR, setup, sim.registration)
 
     w, h = spec.size
     raw_shape, warp_shape = (*setup.camera.resolution[::-1], 3), (h, w, 3)
 
     def files(split: str, i: int) -> tuple[Path, Path]:
-        return (out / "cam" / "raw" / split / image_name(i), out / "cam" / "warp" / split / image_name(i))
+        return (layout.capture_dir(out, split, layout.RAW) / image_name(i),
+                layout.capture_dir(out, split) / image_name(i))
 
     todo = [(split, i) for split, stack in frames.items() for i in range(1, len(stack) + 1)
             if intact_png(files(split, i)[1], warp_shape) is None
@@ -554,7 +534,7 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
                       "total": round(rendered_seconds, 4)},
         "captures_per_second": round(len(todo) / rendered_seconds, 3) if todo else None,
         "registration": {**registration_record,
-                         "ground_truth": f"{REGISTRATION_DIR}/exact_map.npz"},
+                         "ground_truth": f"{layout.REGISTRATION_DIR}/{layout.EXACT_MAP_FILE}"},
     }
-    write_json(out / "meta.json", meta)
+    write_json(out / layout.META_FILE, meta)
     return out

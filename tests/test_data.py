@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from compensation.data import load_setup_data
-from sim.dataset import image_name
+from sim.layout import image_name
 from sim.errors import DatasetError
 from sim.io import read_png, write_png
 from synthetic import albedo_pattern, capture, make_dataset

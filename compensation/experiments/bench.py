@@ -35,6 +35,7 @@ from compensation.methods import applicable, get_method, make_config
 from compensation.training.config import COMMON, PROFILES
 from sim.dataset import FrameSpec
 from sim.errors import ProcamError
+from sim.layout import SETUP_FILE, capture_dir
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,7 @@ def found_setups(root: Path) -> list[str]:
         raise ProcamError(f"{root}: dataset root not found")
     found = []
     for folder, subfolders, _ in os.walk(root):
-        if (Path(folder) / "cam" / "warp").is_dir():
+        if capture_dir(Path(folder)).is_dir():
             found.append(Path(folder).relative_to(root).as_posix())
             subfolders.clear()  # a setup holds no other setup
         subfolders.sort()
@@ -251,7 +252,7 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         "n_train": list(cfg.sizes), "n_test": cfg.tests, "size": [cfg.canonical] * 2 if suite else None,
         "overrides": cfg.overrides, "tables": list(cfg.tables), "profile": cfg.profile,
         "executor": executor.name,
-        "setups": {s: os.path.relpath(data_root / s / "setup.toml", out) for s in setups
+        "setups": {s: os.path.relpath(data_root / s / SETUP_FILE, out) for s in setups
                    if simulated(data_root / s)}})
 
     rows, failures = [], []

@@ -18,9 +18,10 @@ from compensation.data import SetupData
 from compensation.scores.metrics import evaluate, masked_scores
 from sim import seeds
 from sim.capture import Simulator
-from sim.dataset import canonical_size, image_name
+from sim.dataset import canonical_size
 from sim.errors import DatasetError
 from sim.io import read_json, to_float, to_uint8, write_png
+from sim.layout import META_FILE, SETUP_FILE, image_name
 from sim.setup import load_setup
 
 CAPTURES_DIR = "closed_loop"
@@ -36,15 +37,15 @@ def simulator_for(setup_dir: str | Path) -> Simulator:
     size, fidelity, spp, path depth and camera exposure recorded in ``meta.json`` (a transport
     operator comes from the cache; the exposure rule's preview is not rendered again)."""
     setup_dir = Path(setup_dir)
-    meta = read_json(setup_dir / "meta.json", "dataset metadata")
-    setup = load_setup(setup_dir / "setup.toml")
+    meta = read_json(setup_dir / META_FILE, "dataset metadata")
+    setup = load_setup(setup_dir / SETUP_FILE)
     size = canonical_size(meta)
     if size is None:
-        raise DatasetError(f"{setup_dir / 'meta.json'}: no canonical width and height")
+        raise DatasetError(f"{setup_dir / META_FILE}: no canonical width and height")
     sim = Simulator(setup, size, meta.get("fidelity"), meta.get("spp"), cache_dir=setup_dir / "cache",
                     max_depth=(meta.get("fidelity_choice") or {}).get("max_depth"),
                     exposure=meta.get("camera_exposure"))
-    _check_same_hardware(setup_dir / "meta.json", meta, sim)
+    _check_same_hardware(setup_dir / META_FILE, meta, sim)
     return sim
 
 

@@ -37,9 +37,10 @@ from compensation.scores.metrics import evaluate
 from compensation.experiments.official import official_complete, official_tag, write_official_outputs
 from compensation.training.config import TrainConfig
 from compensation.experiments.runs import load_run, package_version, scores_are_current, train_run
-from sim.dataset import FrameSpec, image_name, write_setup
+from sim.dataset import FrameSpec, write_setup
 from sim.errors import ProcamError
 from sim.io import atomic_write, read_json, to_uint8, write_json, write_png
+from sim.layout import META_FILE, SETUP_FILE, image_name
 from sim.setup import Setup
 
 DIVERGED_RATIO = 1.5
@@ -139,7 +140,7 @@ def reusable(run_dir: Path, train_cfg: TrainConfig, setup_dir: Path) -> dict | N
 
 def simulated(setup_dir: Path) -> bool:
     """Whether procam rendered the setup (its ``setup.toml`` makes a closed loop possible)."""
-    return (Path(setup_dir) / "setup.toml").exists()
+    return (Path(setup_dir) / SETUP_FILE).exists()
 
 
 def _closed_loop_done(run_dir: Path, metrics: dict) -> bool:
@@ -211,7 +212,7 @@ class BaselineJob:
 
 
 def _baseline_key(job: BaselineJob, closed: bool) -> dict:
-    meta = Path(job.setup_dir) / "meta.json"
+    meta = Path(job.setup_dir) / META_FILE
     digest = hashlib.sha1(meta.read_bytes()).hexdigest() if meta.exists() else None
     return {"dataset": str(Path(job.setup_dir).resolve()), "meta_sha1": digest, "n_test": job.n_test,
             "closed_loop": closed, "procam_version": package_version()}

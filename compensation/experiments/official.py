@@ -15,8 +15,8 @@ from compensation.data import N_PLAIN, SetupData
 from compensation.methods import get_method
 from compensation.training.config import TrainConfig
 from compensation.experiments.runs import load_run
-from sim.dataset import image_name
 from sim.io import write_png
+from sim.layout import image_name
 
 
 def official_tag(cfg: TrainConfig, pretrained: bool = False) -> str:

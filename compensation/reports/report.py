@@ -32,9 +32,9 @@ from compensation.reports.summary import (is_finite, cell_text, order_key, axis_
                                              breakpoints, failure_columns, failures, read_results,
                                              main_rows, read_study, summarize,
                                              write_summaries)
-from sim.dataset import image_name
 from sim.errors import DatasetError, ProcamError
 from sim.io import atomic_write, read_json, read_png, write_text
+from sim.layout import SETUP_FILE, TEST, capture_dir, image_name
 
 N_ROWS = 3
 """Test images (rows) per figure grid."""
@@ -236,7 +236,7 @@ def figure_grid(folder: Path, rows: list[dict], point: int, stem: Path) -> tuple
     setup_dir = _setup_dir(folder, at[0])
     try:
         surface = read_png(surface_path(setup_dir))
-        desired_dir = frames_root(setup_dir) / "test"
+        desired_dir = frames_root(setup_dir) / TEST
     except (DatasetError, OSError):
         return None
     runs = {}
@@ -244,20 +244,20 @@ def figure_grid(folder: Path, rows: list[dict], point: int, stem: Path) -> tuple
         if r["status"] == "ok" and r.get("run") and r["method"] not in runs:
             runs[r["method"]] = (folder / r["run"] / CAPTURES_DIR, r["n_train"])
     indices = [i for i in range(1, N_ROWS + 1) if (desired_dir / image_name(i)).is_file()
-               and (setup_dir / "cam" / "warp" / "test" / image_name(i)).is_file()]
+               and (capture_dir(setup_dir, TEST) / image_name(i)).is_file()]
     if not indices:
         return None
     columns = ["surface s̃", "uncompensated"] + [f"{m} (n={n})" for m, (_, n) in runs.items()] + ["desired y"]
     cells = []
     for i in indices:
         desired = read_png(desired_dir / image_name(i))
-        unc = read_png(setup_dir / "cam" / "warp" / "test" / image_name(i))
+        unc = read_png(capture_dir(setup_dir, TEST) / image_name(i))
         size = max(4, min(desired.shape[:2]) // 4)
         err = np.abs(unc.astype(np.float32) - desired.astype(np.float32)).sum(-1)
         windows = zoom_windows(err, size)
         images = [surface, unc]
-        for capture_dir, _ in runs.values():
-            file = capture_dir / image_name(i)
+        for run_captures, _ in runs.values():
+            file = run_captures / image_name(i)
             images.append(read_png(file) if file.is_file() else _placeholder(desired.shape[:2]))
         images.append(desired)
         cells.append([grid_cell(img, windows, size) for img in images])
@@ -385,7 +385,7 @@ def _provenance(folder: Path, study: dict, rows: list[dict]) -> str:
     if not setups:
         for r in rows:
             if r["setup"] not in setups:
-                setups[r["setup"]] = _setup_dir(folder, r) / "setup.toml"
+                setups[r["setup"]] = _setup_dir(folder, r) / SETUP_FILE
     shown = []
     for name, path in setups.items():
         path = Path(path) if Path(path).is_absolute() else folder / path
