@@ -1,57 +1,10 @@
-"""Shared fixtures: Mitsuba variants, tiny setups, the synthetic dataset, JIT cache hygiene."""
+"""Shared fixtures: Mitsuba variants, the synthetic dataset, the tiny rendered dataset, JIT cache
+hygiene. The helpers the test modules share are in ``helpers.py``."""
 from __future__ import annotations
-
-import copy
 
 import pytest
 
 from sim.variant import FALLBACK, choose_variant
-
-# A small, fast setup (64² camera, 64² projector): the physics tests build variations of it.
-TINY = {
-    "name": "tiny",
-    "surface": {"geometry": "plane", "size": [1.2, 1.0], "texture": "uniform", "albedo_scale": 0.8},
-    "projector": {"resolution": [64, 64], "fov": 30.0, "position": [0.0, 0.0, 1.0],
-                  "black_level": 0.0},
-    "camera": {"resolution": [64, 64], "fov": 40.0, "position": [0.25, 0.0, 1.0],
-               "shot_noise": 0.0, "read_noise": 0.0},
-    "ambient": {"radiance": [0.0, 0.0, 0.0]},
-    "render": {"fidelity": "direct", "spp": 4, "ambient_spp": 16, "seed": 0},
-}
-
-
-def tiny_setup(**sections):
-    """A validated tiny setup; keyword arguments override keys per section, e.g.
-    ``tiny_setup(camera={"position": [0, 0, 1]})``."""
-    from sim.setup import parse_setup
-
-    data = copy.deepcopy(TINY)
-    for section, values in sections.items():
-        if isinstance(values, dict):
-            data.setdefault(section, {}).update(values)
-        else:
-            data[section] = values
-    return parse_setup(data, source="<tiny>")
-
-
-
-def tiny_toml(name: str = "base", side: int = 32, texture: str = "noise") -> str:
-    """A tiny setup file's text (side² projector and camera, direct light at 4 spp), the base of
-    the suites and studies the end-to-end tests write to disk."""
-    return f"""
-name = "{name}"
-[surface]
-texture = "{texture}"
-texture_resolution = 64
-[projector]
-resolution = [{side}, {side}]
-[camera]
-resolution = [{side}, {side}]
-[render]
-fidelity = "direct"
-spp = 4
-ambient_spp = 16
-"""
 
 VARIANTS = sorted({choose_variant(), FALLBACK})
 
@@ -62,9 +15,10 @@ def variant(request):
     return request.param
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def setup_dir(tmp_path_factory):
-    """A finished synthetic dataset (:func:`synthetic.make_dataset` defaults), one per module."""
+    """A finished synthetic dataset (:func:`synthetic.make_dataset` defaults), shared by the session:
+    read it, never write into it."""
     from synthetic import make_dataset
 
     return make_dataset(tmp_path_factory.mktemp("data"))
@@ -76,6 +30,19 @@ def data(setup_dir):
     from compensation.data import load_setup_data
 
     return load_setup_data(setup_dir)
+
+
+@pytest.fixture(scope="session")
+def tiny_render(tmp_path_factory):
+    """`procam render` of :func:`helpers.tiny_setup_file` with :data:`helpers.TINY_RENDER`, shared by the
+    session: a folder holding the setup file ``tiny.toml`` and the dataset root ``data/``. Read it or
+    copy it, never write into it."""
+    from compensation.cli import main
+    from helpers import TINY_RENDER, tiny_setup_file
+
+    folder = tmp_path_factory.mktemp("tiny_render")
+    assert main(["render", str(tiny_setup_file(folder)), "--out", str(folder / "data"), *TINY_RENDER]) == 0
+    return folder
 
 
 @pytest.fixture(scope="module")

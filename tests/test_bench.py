@@ -11,7 +11,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import pytest
 
-from conftest import tiny_toml
+from helpers import tiny_toml
 from compensation.cli import main
 from compensation.experiments.plans import slug
 from compensation.methods import METHODS

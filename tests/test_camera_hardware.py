@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from helpers import tiny_setup
 from sim import camera
 from sim.camera import optics
 from sim.errors import SetupError
@@ -241,7 +242,6 @@ def test_exposure_rule_clips_the_documented_fraction_of_white():
 
 def test_exposure_rule_in_the_simulator():
     from sim.capture import Simulator
-    from tests.conftest import tiny_setup
 
     # the tiny world's white is flat (0.8 on the lit area): vignetting gives it a falloff
     setup = tiny_setup(camera={"exposure_mode": "rule", "exposure": 0.01, "vignetting": 0.3})
@@ -261,7 +261,6 @@ def test_auto_fidelity_weighs_its_errors_at_the_rule_exposure(monkeypatch):
     exposure the captures will use, not the setup file's placeholder."""
     import sim.capture
     from sim.capture import Simulator
-    from tests.conftest import tiny_setup
 
     seen = []
     real = sim.capture.resolve
@@ -300,7 +299,6 @@ def test_dataset_records_the_exposure_used(tmp_path):
     import json
 
     from sim.dataset import FrameSpec, write_setup
-    from tests.conftest import tiny_setup
 
     spec = FrameSpec(n_train=1, n_test=1, size=(32, 32))
     rule = write_setup(tmp_path / "a", tiny_setup(camera={"exposure_mode": "rule", "vignetting": 0.3}),

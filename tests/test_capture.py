@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import sim.capture
-from conftest import tiny_setup
+from helpers import tiny_setup
 from sim import images
 from sim.capture import Simulator, pipelined
 

@@ -6,6 +6,7 @@ import pytest
 import compensation.experiments.bench
 import compensation.reports.tables
 from compensation.cli import main
+from helpers import tiny_toml
 from sim.setup import load_setups
 
 SUITE = """
@@ -18,19 +19,8 @@ surface = {texture = "noise"}
 [[setup]]
 name = "gamma"
 """
-BASE = """
-name = "base"
-[surface]
-texture = "uniform"
-[projector]
-resolution = [16, 16]
-[camera]
-resolution = [32, 32]
-[render]
-fidelity = "direct"
-spp = 1
-ambient_spp = 1
-"""
+BASE = tiny_toml("base", texture="uniform", projector={"resolution": [16, 16]},
+                 render={"spp": 1, "ambient_spp": 1})
 
 
 @pytest.fixture

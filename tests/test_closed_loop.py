@@ -11,7 +11,7 @@ from compensation.experiments.closed_loop import (closed_loop, closed_loop_score
 from compensation.scores.metrics import masked_scores, psnr, rmse
 from compensation.methods.base import Method
 from compensation.training.config import NoOptions
-from conftest import tiny_setup
+from helpers import tiny_setup
 from sim.capture import Simulator
 from sim.dataset import FrameSpec, write_setup
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import tiny_toml
+from helpers import tiny_toml
 from compensation.experiments.bench import BenchConfig, run_bench
 from compensation.experiments.executors import LocalExecutor, Task, attempt, make_executor
 from compensation.reports.tables import write_tables

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import tiny_toml
+from helpers import tiny_toml
 from compensation.cli import main
 from compensation.methods import make_config
 from compensation.experiments.runs import partial_dir, train_run

@@ -16,41 +16,16 @@ import numpy as np
 import pytest
 
 from compensation.cli import main
+from helpers import TINY_RENDER as ARGS
+from helpers import tiny_setup_file
 from sim import camera, registration
 from sim.errors import ProcamError
 from sim.io import read_png, write_png
 from sim.variant import check_forced
 
 REPO = Path(__file__).resolve().parents[1]
-SETUP = """
-name = "tiny"
-[surface]
-texture = {texture}
-texture_resolution = 64
-[projector]
-resolution = [64, 64]
-look_at = {projector_look_at}
-[camera]
-resolution = [64, 64]
-look_at = {camera_look_at}
-[render]
-fidelity = "direct"
-spp = 4
-ambient_spp = 16
-seed = {seed}
-"""
-ARGS = ["--size", "32", "--n-train", "2", "--n-test", "1", "--quiet"]
 VOLATILE = ("timings_s", "captures_per_second", "captures_this_run")
 """meta.json keys that differ between two runs of the same render."""
-
-
-def _setup_file(folder: Path, name: str = "tiny.toml", seed: int = 0, texture: str = '"noise"',
-                projector_look_at: str = "[0.0, 0.0, 0.0]", camera_look_at: str = "[0.0, 0.0, 0.0]") -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / name
-    path.write_text(SETUP.format(seed=seed, texture=texture, projector_look_at=projector_look_at,
-                                 camera_look_at=camera_look_at))
-    return path
 
 
 def _snapshot(root: Path) -> dict[str, bytes]:
@@ -116,12 +91,10 @@ def _killed_render(argv: list[str], pattern: str, nth: int = 1) -> None:
     assert proc.returncode == -9, proc.stderr
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> Path:
+@pytest.fixture
+def reference(tiny_render) -> Path:
     """An uninterrupted render of the tiny setup: its root folder (the setup file beside it)."""
-    tmp = tmp_path_factory.mktemp("reference")
-    assert main(["render", str(_setup_file(tmp)), "--out", str(tmp / "data"), *ARGS]) == 0
-    return tmp / "data"
+    return tiny_render / "data"
 
 
 def _copy(reference: Path, tmp_path: Path) -> Path:
@@ -132,17 +105,17 @@ def _copy(reference: Path, tmp_path: Path) -> Path:
 
 # --------------------------------------------------------------- setups that capture nothing useful
 
-@pytest.mark.parametrize("pose", [{"projector_look_at": "[4.0, 0.0, 0.5]"},  # projector aimed away
-                                  {"camera_look_at": "[3.0, 0.0, 0.0]"}])  # camera aimed away
+@pytest.mark.parametrize("pose", [{"projector": {"look_at": [4.0, 0.0, 0.5]}},  # projector aimed away
+                                  {"camera": {"look_at": [3.0, 0.0, 0.0]}}])  # camera aimed away
 def test_setup_that_sees_no_projection_is_refused_before_rendering(tmp_path, capsys, pose):
-    setup = _setup_file(tmp_path, **pose)
+    setup = tiny_setup_file(tmp_path, **pose)
     _refused(capsys, ["render", str(setup), "--out", str(tmp_path / "data"), *ARGS],
              'setup "tiny"', "only 0.0% of the projector image", "at least 50%", "look_at")
     assert not (tmp_path / "data").exists()
 
 
 def test_every_setup_of_a_suite_is_checked_before_the_first_is_rendered(tmp_path, capsys):
-    _setup_file(tmp_path)
+    tiny_setup_file(tmp_path)
     suite = tmp_path / "suite.toml"
     suite.write_text('base = "tiny.toml"\n[[setup]]\nname = "good"\n[[setup]]\nname = "away"\n'
                      "projector = { look_at = [4.0, 0.0, 0.5] }\n")
@@ -160,7 +133,7 @@ def test_shipped_setups_see_the_whole_projection():
 
 def _bad_texture(tmp_path: Path, content: bytes) -> list[str]:
     (tmp_path / "tex.png").write_bytes(content)
-    return [str(_setup_file(tmp_path, texture='"tex.png"'))]
+    return [str(tiny_setup_file(tmp_path, texture="tex.png"))]
 
 
 def _image_folder(tmp_path: Path, broken: bool) -> list[str]:
@@ -169,7 +142,7 @@ def _image_folder(tmp_path: Path, broken: bool) -> list[str]:
         write_png(folder / name, np.full((8, 8, 3), 100, np.uint8))
     if broken:
         (folder / "c.png").write_bytes((folder / "c.png").read_bytes()[:10])
-    return [str(_setup_file(tmp_path)), "--images", str(folder)]
+    return [str(tiny_setup_file(tmp_path)), "--images", str(folder)]
 
 
 def _latin1_setup(tmp_path: Path) -> list[str]:
@@ -187,10 +160,10 @@ BAD_INPUTS = {
                                      ["c.png", "cannot read image"]),
     "--images with too few files": (lambda t: _image_folder(t, broken=False),
                                     ["frames", "found 2 image files", "need 3"]),
-    "--n-train -5": (lambda t: [str(_setup_file(t)), "--n-train", "-5"], ["--n-train", "-5", ">= 1"]),
-    "--n-test 0": (lambda t: [str(_setup_file(t)), "--n-test", "0"], ["--n-test", "0", ">= 1"]),
-    "--frame-seed -1": (lambda t: [str(_setup_file(t)), "--frame-seed", "-1"], ["--frame-seed", "-1"]),
-    "--spp 0": (lambda t: [str(_setup_file(t)), "--spp", "0"], ["--spp", "= 0", ">= 1"]),
+    "--n-train -5": (lambda t: [str(tiny_setup_file(t)), "--n-train", "-5"], ["--n-train", "-5", ">= 1"]),
+    "--n-test 0": (lambda t: [str(tiny_setup_file(t)), "--n-test", "0"], ["--n-test", "0", ">= 1"]),
+    "--frame-seed -1": (lambda t: [str(tiny_setup_file(t)), "--frame-seed", "-1"], ["--frame-seed", "-1"]),
+    "--spp 0": (lambda t: [str(tiny_setup_file(t)), "--spp", "0"], ["--spp", "= 0", ">= 1"]),
     "--fidelity direct on a corner": (lambda t: ["corner", "--fidelity", "direct"],
                                       ['fidelity "direct"', "inter-reflection"]),
     "setup file not UTF-8": (lambda t: _latin1_setup(t), ["latin.toml", "not valid TOML"]),
@@ -207,7 +180,7 @@ def test_bad_input_is_refused_and_writes_nothing(tmp_path, capsys, case):
 
 def test_output_root_that_is_a_file_is_refused(tmp_path, capsys):
     (tmp_path / "data").write_text("a file")
-    _refused(capsys, ["render", str(_setup_file(tmp_path)), "--out", str(tmp_path / "data"), *ARGS],
+    _refused(capsys, ["render", str(tiny_setup_file(tmp_path)), "--out", str(tmp_path / "data"), *ARGS],
              str(tmp_path / "data"), "cannot write the dataset root")
     assert (tmp_path / "data").read_text() == "a file"
 
@@ -215,7 +188,7 @@ def test_output_root_that_is_a_file_is_refused(tmp_path, capsys):
 @pytest.mark.parametrize("option", [["--window", "0"], ["--repeats", "0"], ["--ref-spp", "0"],
                                     ["--spp", "4,0"]])
 def test_bench_sim_refuses_options_below_one(tmp_path, capsys, option):
-    argv = ["bench-sim", str(_setup_file(tmp_path)), "--out", str(tmp_path / "bench"), "--quiet",
+    argv = ["bench-sim", str(tiny_setup_file(tmp_path)), "--out", str(tmp_path / "bench"), "--quiet",
             "--classes", "smooth", "--ref-spp", "4", "--spp", "1", *option]
     if option[0] == "--spp":
         with pytest.raises(SystemExit) as exit_:  # an argparse type: usage and the value
@@ -244,7 +217,7 @@ def test_cuda_variant_without_a_gpu_is_refused():
 
 
 def test_bad_variant_from_the_command_line(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "compensation.cli", "render", str(_setup_file(tmp_path)),
+    proc = subprocess.run([sys.executable, "-m", "compensation.cli", "render", str(tiny_setup_file(tmp_path)),
                            "--out", str(tmp_path / "data"), *ARGS],
                           env={**_env(), "PROCAM_VARIANT": "bogus"}, capture_output=True, text=True)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
@@ -256,7 +229,7 @@ def test_bad_variant_from_the_command_line(tmp_path):
 
 def test_killed_at_every_stage_resumes_to_the_same_bytes(reference, tmp_path, capsys):
     root = tmp_path / "data"
-    argv = ["render", str(_setup_file(tmp_path)), "--out", str(root), *ARGS]
+    argv = ["render", str(tiny_setup_file(tmp_path)), "--out", str(root), *ARGS]
     _killed_render(argv, "data/ref/img_*.png", nth=5)  # while writing the shared frames
     assert json.loads((root / "frames.json").read_text())["source"]["seed"] == 0  # written first
     assert not (root / "tiny").exists()
@@ -344,7 +317,7 @@ def test_finished_setup_rendered_otherwise_is_refused(reference, tmp_path, capsy
 def test_overwrite_renders_every_capture_again(reference, tmp_path):
     """--overwrite after a change of setup (or of a record) replaces every capture."""
     fresh = tmp_path / "fresh"
-    other = _setup_file(tmp_path / "other", seed=1)
+    other = tiny_setup_file(tmp_path / "other", render={"seed": 1})
     assert main(["render", str(other), "--out", str(fresh), *ARGS]) == 0
     root = _copy(reference, tmp_path)
     assert main(["render", str(other), "--out", str(root), *ARGS, "--overwrite"]) == 0
@@ -388,13 +361,13 @@ def test_a_root_held_by_another_writer_is_refused(tmp_path, capsys):
     root.mkdir()
     with open(root / ".lock", "w") as held:
         fcntl.flock(held, fcntl.LOCK_EX)
-        _refused(capsys, ["render", str(_setup_file(tmp_path)), "--out", str(root), *ARGS],
+        _refused(capsys, ["render", str(tiny_setup_file(tmp_path)), "--out", str(root), *ARGS],
                  str(root / ".lock"), "another procam process")
     assert sorted(p.name for p in root.iterdir()) == [".lock"]
 
 
 def test_concurrent_renders_with_other_frame_seeds_one_refused(tmp_path):
-    setup = _setup_file(tmp_path)
+    setup = tiny_setup_file(tmp_path)
     procs = [subprocess.Popen([sys.executable, "-m", "compensation.cli", "render", str(setup), "--out",
                                str(tmp_path / "data"), *ARGS, "--frame-seed", str(seed)],
                               env=_env(), stderr=subprocess.PIPE, text=True) for seed in (1, 2)]

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from conftest import tiny_setup
+from helpers import tiny_setup, tiny_toml
 from sim import camera, geometry
 from sim.capture import Simulator
 from sim.dataset import FrameSpec, write_setup
@@ -106,26 +106,11 @@ def test_dataset_records_the_choice_and_reuses_the_operator(tmp_path):
     assert meta["transport"]["loaded_from_cache"] and meta["counts"]["train"] == 3
 
 
-SETUP_FILE = """
-name = "tinycli"
-[surface]
-texture = "noise"
-texture_resolution = 64
-[projector]
-resolution = [32, 32]
-[camera]
-resolution = [32, 32]
-[render]
-spp = 4
-ambient_spp = 16
-"""
-
-
 def test_cli_render_transport_and_bench_sim(tmp_path, capsys):
     from compensation.cli import main
 
     path = tmp_path / "tinycli.toml"
-    path.write_text(SETUP_FILE)
+    path.write_text(tiny_toml("tinycli", 32, render={"fidelity": "auto"}))
     args = ["--size", "16", "--n-train", "1", "--n-test", "1", "--quiet"]
     assert main(["render", str(path), "--out", str(tmp_path / "data"), "--fidelity", "transport", *args]) == 0
     meta = json.loads((tmp_path / "data" / "tinycli" / "meta.json").read_text())

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import tiny_setup
+from helpers import tiny_setup
 
 from compensation.cli import main
 from compensation.data import load_setup_data

@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import tiny_setup
+from helpers import tiny_setup
 
 from sim import projector, registration, seeds
 from sim.capture import Simulator

@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from conftest import tiny_setup
+from helpers import tiny_setup
 from sim import geometry, registration
 from sim.capture import Simulator
 

@@ -10,7 +10,7 @@ import pytest
 
 from compensation.cli import main
 from compensation.experiments.closed_loop import simulator_for
-from conftest import tiny_setup
+from helpers import tiny_setup
 from sim import registration
 from sim.capture import Simulator
 from sim.errors import SetupError

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import tiny_setup
+from helpers import tiny_setup
 from sim.render import Renderer
 
 

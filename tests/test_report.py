@@ -20,7 +20,7 @@ from compensation.experiments.jobs import RESULT_COLUMNS
 from compensation.reports.summary import summarize
 from sim.errors import ProcamError
 from sim.io import write_png
-from tests.synthetic import make_dataset
+from synthetic import make_dataset
 
 AXIS = "projector.aperture"
 VALUES = [0.0, 1.0, 2.0]

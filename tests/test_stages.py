@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import tiny_setup
+from helpers import tiny_setup
 
 from sim import camera, projector, seeds
 from sim.camera import chain as camera_chain

@@ -13,7 +13,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import pytest
 
-from conftest import tiny_toml
+from helpers import tiny_toml
 from compensation.cli import main
 from compensation.experiments.jobs import RESULT_COLUMNS, run_status
 from compensation.reports.summary import STATUSES

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import tiny_setup
+from helpers import tiny_setup
 from sim import projector
 from sim.capture import Simulator
 from sim.errors import SetupError

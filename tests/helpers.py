@@ -1,0 +1,64 @@
+"""Helpers shared by the test modules: the tiny setups the physics and end-to-end tests build on,
+as validated setups (:func:`tiny_setup`) or as setup files (:func:`tiny_toml`,
+:func:`tiny_setup_file`), and the options of the tiny rendered dataset (:data:`TINY_RENDER`)."""
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import tomli_w
+
+from sim.setup import Setup, parse_setup
+
+TINY = {
+    "name": "tiny",
+    "surface": {"geometry": "plane", "size": [1.2, 1.0], "texture": "uniform", "albedo_scale": 0.8},
+    "projector": {"resolution": [64, 64], "fov": 30.0, "position": [0.0, 0.0, 1.0],
+                  "black_level": 0.0},
+    "camera": {"resolution": [64, 64], "fov": 40.0, "position": [0.25, 0.0, 1.0],
+               "shot_noise": 0.0, "read_noise": 0.0},
+    "ambient": {"radiance": [0.0, 0.0, 0.0]},
+    "render": {"fidelity": "direct", "spp": 4, "ambient_spp": 16, "seed": 0},
+}
+"""A small, fast noiseless setup (64² camera, 64² projector): the physics tests build variations of it."""
+
+
+def _overridden(data: dict, sections: dict) -> dict:
+    """A copy of the setup table ``data`` with ``sections`` applied: a dict updates the keys of that
+    section, any other value replaces the entry."""
+    out = copy.deepcopy(data)
+    for section, values in sections.items():
+        if isinstance(values, dict):
+            out.setdefault(section, {}).update(values)
+        else:
+            out[section] = values
+    return out
+
+
+def tiny_setup(**sections) -> Setup:
+    """The validated :data:`TINY` setup; keyword arguments override keys per section, e.g.
+    ``tiny_setup(camera={"position": [0, 0, 1]})``."""
+    return parse_setup(_overridden(TINY, sections), source="<tiny>")
+
+
+def tiny_toml(name: str = "base", side: int = 32, texture: str = "noise", **sections) -> str:
+    """A tiny setup file's text (side² projector and camera, direct light at 4 spp, the default
+    camera noise), the base of the setups, suites and studies the end-to-end tests write to disk;
+    keyword arguments override keys per section, as in :func:`tiny_setup`."""
+    data = {"name": name, "surface": {"texture": texture, "texture_resolution": 64},
+            "projector": {"resolution": [side, side]}, "camera": {"resolution": [side, side]},
+            "render": {"fidelity": "direct", "spp": 4, "ambient_spp": 16}}
+    return tomli_w.dumps(_overridden(data, sections))
+
+
+def tiny_setup_file(folder: Path, file: str = "tiny.toml", **keys) -> Path:
+    """The setup file ``folder / file`` (``folder`` created) holding the setup ``tiny``: :func:`tiny_toml`
+    at 64² with ``keys`` (its texture and per-section overrides)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / file
+    path.write_text(tiny_toml("tiny", 64, **keys))
+    return path
+
+
+TINY_RENDER = ["--size", "32", "--n-train", "2", "--n-test", "1", "--quiet"]
+"""`procam render` options of the tiny rendered dataset (the session fixture ``tiny_render``)."""
