@@ -2,7 +2,7 @@
 
 The "setup" is a known invertible degradation, no rendering involved::
 
-    capture = 0.15 + 0.7 · frame · albedo      (then 8-bit)
+    capture = 0.15 + 0.7 · frame · albedo      (then 8-bit; the offset and gain can be chosen)
 
 with a smooth coloured albedo pattern, so the ideal compensation is
 ``frame = (capture − 0.15) / (0.7 · albedo)``.
@@ -49,13 +49,14 @@ def plain_frames(size: int) -> np.ndarray:
     return to_uint8(np.array(colours, dtype=np.float32)[:, None, None, :] * np.ones((size, size, 1)))
 
 
-def capture(frames: np.ndarray, albedo: np.ndarray) -> np.ndarray:
-    """The synthetic setup's captures of uint8 ``frames``: ``0.15 + 0.7 · frame · albedo``, uint8."""
-    return to_uint8(OFFSET + GAIN * frames.astype(np.float32) / 255.0 * albedo)
+def capture(frames: np.ndarray, albedo: np.ndarray, offset: float = OFFSET, gain: float = GAIN) -> np.ndarray:
+    """The synthetic setup's captures of uint8 ``frames``: ``offset + gain · frame · albedo``, uint8."""
+    return to_uint8(offset + gain * frames.astype(np.float32) / 255.0 * albedo)
 
 
 def make_dataset(root: Path, name: str = "synth", size: int = 32, n_train: int = 16,
-                 n_test: int = 4, seed: int = 0, finished: bool = True, official: bool = False) -> Path:
+                 n_test: int = 4, seed: int = 0, finished: bool = True, official: bool = False,
+                 offset: float = OFFSET, gain: float = GAIN) -> Path:
     """Write a synthetic dataset root with one setup and return the setup folder.
 
     Called again with the same root, size, counts and seed, it adds another setup beside the first
@@ -79,6 +80,8 @@ def make_dataset(root: Path, name: str = "synth", size: int = 32, n_train: int =
     official : bool
         The official CompenNet benchmark's layout instead: no ``meta.json`` nor ``setup.toml``, the
         gray frame and its capture named ``img_gray.png``.
+    offset, gain : float
+        The captures' additive light and the projected frame's gain (:func:`capture`).
     """
     root = Path(root)
     rng = np.random.default_rng(seed)
@@ -87,7 +90,7 @@ def make_dataset(root: Path, name: str = "synth", size: int = 32, n_train: int =
               "test": random_frames(n_test, size, rng)}
     setup_dir = root / name
     for split, frames in splits.items():
-        captures = capture(frames, albedo)
+        captures = capture(frames, albedo, offset, gain)
         for i, (frame, cap) in enumerate(zip(frames, captures), start=1):
             file = "img_gray.png" if official and split == "ref" and i == len(frames) else f"img_{i:04d}.png"
             write_png(root / split / file, frame)
