@@ -128,8 +128,10 @@ class Spec:
             what = f"expected one of {', '.join(shown(c) for c in self.options())}"
         elif self.kind == "boolean":
             what = "expected true or false"
-        else:
+        elif self.kind == "string":
             what = "expected a string"
+        else:
+            what = "expected the options of " + self.selector
         return " ".join(filter(None, (what.rstrip(), self.unit)))
 
     def options(self) -> tuple:
@@ -157,8 +159,10 @@ class Spec:
             out = value
         elif self.kind == "boolean":
             ok, out = isinstance(value, bool), value
-        else:
+        elif self.kind == "string":
             ok, out = isinstance(value, str), value
+        else:
+            raise TypeError("a variant's keys are read by sim.options.parse")
         if not ok:
             raise ValueError(self.expected())
         if self.check is not None:
@@ -351,34 +355,33 @@ def parse(cls: type, data: Mapping, table: Table) -> Any:
         If a field of ``cls`` (or of a variant) was declared without a spec (:func:`spec_of`).
     """
     own = option_fields(cls)
-    variant_keys = {f.name: {name: [g.name for g in option_fields(v)]
-                             for name, v in spec_of(f).variants.items()}
-                    for f in own if spec_of(f).kind == "variant"}
-    known = {f.name for f in own if f.name not in variant_keys} | {
-        k for by_name in variant_keys.values() for keys in by_name.values() for k in keys}
+    variants = {f.name: {value: {g.name for g in option_fields(options)}
+                         for value, options in spec_of(f).variants.items()}
+                for f in own if spec_of(f).kind == "variant"}
+    shared = {f.name for f in own if f.name not in variants}
+    every = shared.union(*(keys for by_value in variants.values() for keys in by_value.values()))
     section = table.key.rsplit(".", 1)[-1]
     for name in data:
-        if name not in known:
-            raise table.error(name, None, f"unknown key; valid keys of [{section}]: {', '.join(sorted(known))}")
+        if name not in every:
+            raise table.error(name, None, f"unknown key; valid keys of [{section}]: {', '.join(sorted(every))}")
     values: dict[str, Any] = {}
     for f in own:
         spec = spec_of(f)
         if spec.kind == "variant":
             chosen = values[spec.selector]
-            keys = variant_keys[f.name][chosen]
+            keys = variants[f.name][chosen]
             for name in data:
-                takers = [v for v, ks in variant_keys[f.name].items() if name in ks]
+                takers = [value for value, ks in variants[f.name].items() if name in ks]
                 if takers and name not in keys:
-                    valid = sorted(known - {k for ks in variant_keys[f.name].values() for k in ks} | set(keys))
                     raise table.error(name, data[name], (
                         f"not a key of {table.dotted(spec.selector)} = {shown(chosen)} (only of "
                         f"{', '.join(shown(t) for t in takers)}); valid keys of [{section}]: "
-                        f"{', '.join(valid)}"))
-            values[f.name] = parse(spec.variants[chosen], {k: data[k] for k in keys if k in data}, table)
+                        f"{', '.join(sorted(shared | keys))}"))
+            values[f.name] = parse(spec.variants[chosen], {k: v for k, v in data.items() if k in keys}, table)
             continue
         given = f.name in data
         value = data[f.name] if given else f.default
-        if value is None and not given:
+        if value is None and not given:  # an optional key left out
             values[f.name] = None
             continue
         try:
