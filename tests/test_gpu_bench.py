@@ -1,10 +1,11 @@
 """benchmarks/gpu.py in its CPU dry-run form, so that the GPU script cannot rot: every part runs
-(training through procam's loop, a transport render of a shipped setup, the operator timing) and
-its JSON holds what the report prints."""
+(training through procam's loop, a transport render of a shipped setup, the operator timing), the
+rate is the loop's, and its JSON holds what the report prints."""
 from __future__ import annotations
 
 import importlib.util
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -29,14 +30,23 @@ def test_gpu_benchmark_dry_run_on_cpu(tmp_path, capsys):
                                  "--frames", "2", "--out", str(tmp_path)])
     assert json.loads((tmp_path / "gpu.json").read_text()) == result
     training = result["training"]
-    assert (training["iters"], training["batch"], training["amp"]) == (2, 4, False)
-    assert training["samples_per_second"] > 0 and training["predict_seconds"] > 0
+    assert (training["size"], training["pairs"], training["iters"], training["batch"], training["amp"]) == \
+           (32, 8, 2, 4, False)
+    # the rate is the loop's: iterations × batch over the loop's seconds, within the whole fit's
+    assert math.isclose(training["samples_per_second"], 2 * 4 / training["loop_seconds"], rel_tol=1e-9)
+    assert 0 < training["loop_seconds"] <= training["fit_seconds"] and training["predict_seconds"] > 0
+    assert math.isfinite(training["final_loss"]) and math.isfinite(training["train_psnr_db"])
     render = result["render"]
     assert [row["setup"] for row in render["setups"]] == ["ideal"]
     assert render["setups"][0]["captures"] == 2 + 1 + 126  # train, test, 125 plain colours + gray
     assert render["operator_nnz"] > 32 * 32 and set(render["project_seconds_per_frame"]) == {"cpu"}
     out = capsys.readouterr().out
-    assert "training CompenNet 32², 8 pairs, 2 iterations, batch 4" in out and "transport operator" in out
+    assert (f"training CompenNet 32², 8 pairs, 2 iterations, batch 4, AMP False: "
+            f"{training['fit_seconds']:.1f} s ({training['samples_per_second']:.0f} samples/s)") in out
+    assert f"render ideal ({render['setups'][0]['variant']}, transport): 129 captures" in out
+    width, height = render["projector_size"]
+    assert (f"transport operator ({width}x{height} projector, nnz {render['operator_nnz']}): "
+            f"cpu {1000 * render['project_seconds_per_frame']['cpu']:.2f} ms/frame") in out
 
 
 def test_gpu_benchmark_refuses_a_missing_cuda_device(capsys):

@@ -1,10 +1,13 @@
 """benchmarks/train.py and benchmarks/pix2pix.py at a tiny size, so that the scripts cannot rot:
-every step runs in its own process and gets a positive rate, the naive loop is the unit."""
+every step runs in its own process, the table names the steps measured, and each speed-up printed is
+the ratio of the rates (or times) printed beside it, the naive loop (default layout) the unit."""
 from __future__ import annotations
 
 import gc
+import math
 import os
 import re
+import statistics
 import subprocess
 import sys
 from pathlib import Path
@@ -30,20 +33,38 @@ def output(script: str, *args: str) -> str:
     return proc.stdout
 
 
+def cells(row: str) -> list[tuple[float, float]]:
+    """The (samples/s, ratio to naive) pairs of a row of benchmarks/train.py's table."""
+    return [(float(rate), float(ratio)) for rate, ratio in re.findall(r"([\d.]+) \(([\d.]+)×\)", row)]
+
+
 @pytest.mark.slow
-def test_train_benchmark_runs_every_step():
+def test_train_benchmark_runs_every_step(monkeypatch):
+    """Two runs and their median: every step named in the header, each measured in every row, its
+    ratio its rate over the naive loop's (up to the printed rounding), the median row the median of
+    the runs."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    import train
+
     out = output("train.py", "--sizes", "16", "--batches", "2", "--rounds", "1", "--runs", "2",
                  "--threads", "1")
     lines = out.splitlines()
-    assert lines[1].split()[:3] == ["size", "batch", "naive"]
-    assert lines[1].rstrip().endswith("retained heap")
-    rows = [line for line in lines if line.lstrip().startswith(("16", "median"))]
-    assert len(rows) == 3  # two runs and their median
-    for row in rows:
-        cells = re.findall(r"([\d.]+) \(([\d.]+)×\)", row)
-        assert len(cells) == 7  # naive … retained heap
-        assert all(float(rate) > 0 for rate, _ in cells)
-        assert cells[0][1] == "1.00"
+    header = lines[1]
+    assert header[:11].split() == ["size", "batch"]
+    assert [header[i:i + 20].strip() for i in range(11, len(header), 20)] == list(train.STEPS[:-1])
+    runs = [cells(line) for line in lines if line.split()[:2] == ["16", "2"]]
+    median = [cells(line) for line in lines if line.lstrip().startswith("median")]
+    assert len(runs) == 2 and len(median) == 1
+    for row in [*runs, *median]:
+        assert len(row) == len(train.STEPS) - 1
+        assert all(math.isfinite(rate) and rate > 0 and math.isfinite(ratio) for rate, ratio in row)
+        assert row[0][1] == 1.0  # the naive loop is the unit
+    for row in runs:
+        naive = row[0][0]
+        assert all(math.isclose(ratio, rate / naive, rel_tol=0.01, abs_tol=0.006) for rate, ratio in row)
+    for step, (rate, ratio) in enumerate(median[0]):
+        assert math.isclose(rate, statistics.median(r[step][0] for r in runs), abs_tol=0.006)
+        assert math.isclose(ratio, statistics.median(r[step][1] for r in runs), abs_tol=0.006)
 
 
 def test_procams_step_keeps_its_layers_changed(monkeypatch):
@@ -62,11 +83,16 @@ def test_procams_step_keeps_its_layers_changed(monkeypatch):
 
 @pytest.mark.slow
 def test_pix2pix_benchmark_runs_every_variant():
+    """Each variant's median time and its speed-up over the default layout, which is the unit."""
     out = output("pix2pix.py", "--size", "32", "--rounds", "1")
-    times = dict(re.findall(r"^\s+(default layout|channels_last|retained heap)\s+([\d.]+) ms", out,
-                            flags=re.M))
-    assert set(times) == {"default layout", "channels_last", "retained heap"}
-    assert all(float(t) > 0 for t in times.values())
+    assert out.startswith("pix2pix step at 32², batch 1") and "median of 1 interleaved steps" in out
+    rows = re.findall(r"^\s+(default layout|channels_last|retained heap)\s+([\d.]+) ms\s+\(([\d.]+)x\)$",
+                      out, flags=re.M)
+    assert [name for name, _, _ in rows] == ["default layout", "channels_last", "retained heap"]
+    times = {name: float(ms) for name, ms, _ in rows}
+    assert all(math.isfinite(ms) and ms > 0 for ms in times.values())
+    for name, _, ratio in rows:
+        assert math.isclose(float(ratio), times["default layout"] / times[name], rel_tol=0.01, abs_tol=0.006)
 
 
 @pytest.mark.slow
