@@ -48,7 +48,7 @@ def test_found_setups_and_tables(bench):
     assert sorted({r["setup"] for r in per}) == list(SETUPS)
     t1 = _rows(out / "table1.csv")
     assert [(r["method"], r["n_train"], r["setups"]) for r in t1] == [
-        ("uncompensated", "-", "2"), ("compennet", "8", "2"), ("tps", "8", "2")]
+        ("uncompensated", "-", "2"), ("compennet", "8", "2"), ("tps (λ = 0.01)", "8", "2")]
     # the paper's figures beside procam's: the uncompensated row has them, 8 pairs do not
     assert (t1[0]["paper PSNR"], t1[0]["paper RMSE"], t1[0]["paper SSIM"]) == ("12.1673", "0.4342", "0.4875")
     assert t1[1]["paper PSNR"] == "-" and float(t1[2]["PSNR"]) > float(t1[0]["PSNR"])
@@ -77,7 +77,7 @@ def test_official_outputs(bench):
         assert not np.array_equal(written, to_uint8(predicted))  # truncated, not rounded
     for setup in SETUPS:
         tags = {p.name for p in (out / "official" / setup / "prj" / "cmp").iterdir()}
-        assert tags == {"CompenNet_l1+ssim_8_2_2", "TPS_125", "CompenNet_l1+ssim_32_2_2"}  # TPS: 125 colours
+        assert tags == {"CompenNet_l1+ssim_8_2_2", "TPS_125_lambda0.01", "CompenNet_l1+ssim_32_2_2"}  # TPS: 125 colours
 
 
 def test_bench_without_suite_needs_the_data(tmp_path, capsys):

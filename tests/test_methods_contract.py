@@ -113,7 +113,7 @@ def test_cli_train_refuses_an_option_the_method_does_not_use(setup_dir, tmp_path
     assert main(["train", str(setup_dir), "--method", "tps", "--loss", "ssim", "--out", str(out),
                  "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert "method 'tps' does not use option 'loss'" in err and "its options: smoothing, workers" in err
+    assert "method 'tps' does not use option 'loss'" in err and "its options: smoothing, scale_invariant, workers" in err
     assert not out.exists()
 
 
@@ -124,5 +124,5 @@ def test_cli_train_passes_method_options(setup_dir, tmp_path, capsys):
                  "--quiet"]) == 0
     assert "procam: tps on synth" in capsys.readouterr().out
     train = json.loads((out / "config.json").read_text())["train"]
-    assert train["options"] == {"smoothing": 0.05, "workers": 1}
+    assert train["options"] == {"smoothing": 0.05, "scale_invariant": False, "workers": 1}
     assert (train["n_train"], train["n_test"], train["profile"], train["device"]) == (16, 2, "quick", "cpu")

@@ -56,6 +56,12 @@ def _rows(path: Path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
+def _setup_value(setup, section: str, key: str):
+    """A setup key's value, in its section or in the surface's own options (``surface.shape``)."""
+    table = getattr(setup, section)
+    return getattr(table, key) if hasattr(table, key) else getattr(table.shape, key)
+
+
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
 def test_shipped_studies_load_and_expand(path):
     text = path.read_text()
@@ -70,12 +76,13 @@ def test_shipped_studies_load_and_expand(path):
     assert len(plan.points) == n_points
     per_point = len(study.methods) * len(study.seeds) * (1 if any(a.key == "n_train" for a in study.axes)
                                                         else len(study.n_train))
-    assert len(plan.runs) == n_points * per_point
+    bases = len({name.split("__")[0] for name in plan.setups})  # a suite base gives several
+    assert len(plan.runs) == n_points * per_point * bases
     setup_axes = [a for a in study.axes if a.on_setup]
-    assert len(plan.setups) == (math.prod(len(a.values) for a in setup_axes) if setup_axes else 1)
+    assert len(plan.setups) == (math.prod(len(a.values) for a in setup_axes) if setup_axes else 1) * bases
     for axis in setup_axes:  # every value reached its setup (a number broadcast to an RGB triple)
         section, key = axis.key.split(".")
-        seen = {getattr(getattr(s, section), key) for s in plan.setups.values()}
+        seen = {_setup_value(s, section, key) for s in plan.setups.values()}
         assert len(seen) == len(axis.values)
     assert len({r.run for r in plan.runs}) <= len(plan.runs)
 
@@ -96,6 +103,22 @@ def test_overrides_and_only():
     assert sorted({r.point.index for r in only.runs}) == [1, 4]
     with pytest.raises(ProcamError, match="--only 9: matches no point"):
         expand(with_overrides(study, only=("9",)))
+
+
+def test_only_in_the_study_file_selects_setups():
+    plan = expand(load_study(ROOT / "scenes" / "studies" / "baseline-smoothing.toml"))
+    assert sorted(plan.setups) == sorted(f"light1_{p}" for p in (
+        "pos5_curves", "pos1_squares", "pos2_stripes", "pos3_lavender", "pos4_cloud", "pos5_cubes"))
+    assert {r.run.rsplit("/", 1)[1] for r in plan.runs if r.method in ("nayar", "compennet")} == {
+        "nayar-n125-seed0", "compennet-n125-seed0"}  # reference lines: one fit per setup
+
+
+def test_bad_only_is_named(tmp_path):
+    (tmp_path / "base.toml").write_text(BASE)
+    (tmp_path / "study.toml").write_text(
+        'base = "base.toml"\nmethods = ["nayar"]\nonly = "light1"\n[[axis]]\nkey = "ambient.radiance"\nvalues = [0.1]\n')
+    with pytest.raises(ProcamError, match=r"study\.toml: only = 'light1': expected a list of setup-name patterns"):
+        load_study(tmp_path / "study.toml")
 
 
 def test_training_axis_shares_runs_of_methods_without_the_option():

@@ -12,7 +12,8 @@ import torch
 from scipy.interpolate import RBFInterpolator
 
 from compensation.data import PairSet, SetupData
-from compensation.methods import get_method, nayar, tps
+from compensation.experiments.official import official_tag
+from compensation.methods import get_method, make_config, nayar, tps
 from compensation.training.config import NoOptions, TrainConfig
 from compensation.experiments.runs import load_run, train_run
 from sim.errors import ProcamError
@@ -54,6 +55,50 @@ def test_tps_equals_scipy_rbf_interpolator(smoothing):
         ref = RBFInterpolator(centres[p], values[p], kernel="thin_plate_spline", smoothing=smoothing,
                               degree=1)
         np.testing.assert_allclose(ours[p], ref(queries[p]), rtol=0, atol=1e-9)
+
+
+def test_scale_invariant_smoothing_is_lambda_alpha_squared_per_pixel():
+    """scale_invariant: each pixel's ridge is λ·α², α its mean centre distance over all n² pairs."""
+    rng = np.random.default_rng(2)
+    centres = rng.random((3, 30, 3)) * np.array([1.0, 0.5, 0.2])[:, None, None]  # three spreads
+    values, queries = rng.random((3, 30, 3)), rng.random((3, 20, 3))
+    coeffs, _, _ = tps.fit_pixel_splines(centres, values, 0.05, scale_invariant=True)
+    ours = spline_at(queries, centres, coeffs)
+    for p in range(3):
+        alpha = np.linalg.norm(centres[p][:, None] - centres[p][None], axis=-1).mean()
+        ref = RBFInterpolator(centres[p], values[p], kernel="thin_plate_spline",
+                              smoothing=0.05 * alpha ** 2, degree=1)
+        np.testing.assert_allclose(ours[p], ref(queries[p]), rtol=0, atol=1e-9)
+
+
+def test_paper_smoothing_is_the_reimplementations_log2_kernel_with_ridge():
+    """The paper profile's fit equals the public reimplementation's definition: kernel r² log₂ r,
+    0.05·α² on its diagonal, affine part [1, R, G, B] (solved here directly)."""
+    rng = np.random.default_rng(3)
+    c, x, q = rng.random((1, 25, 3)), rng.random((1, 25, 3)), rng.random((1, 10, 3))
+    n = c.shape[1]
+    r = np.linalg.norm(c[0][:, None] - c[0][None], axis=-1)
+    alpha = r.sum() / n ** 2
+    k = np.where(r > 0, r * r * np.log2(np.where(r > 0, r, 1)), 0) + 0.05 * alpha ** 2 * np.eye(n)
+    p = np.hstack([np.ones((n, 1)), c[0]])
+    lhs = np.block([[k, p], [p.T, np.zeros((4, 4))]])
+    w = np.linalg.solve(lhs, np.vstack([x[0], np.zeros((4, 3))]))
+    rq = np.linalg.norm(q[0][:, None] - c[0][None], axis=-1)
+    kq = np.where(rq > 0, rq * rq * np.log2(np.where(rq > 0, rq, 1)), 0)
+    expected = kq @ w[:n] + np.hstack([np.ones((10, 1)), q[0]]) @ w[n:]
+    coeffs, _, _ = tps.fit_pixel_splines(c, x, tps.PAPER_SMOOTHING, scale_invariant=True)
+    np.testing.assert_allclose(spline_at(q, c, coeffs)[0], expected, rtol=0, atol=1e-9)
+
+
+def test_profiles_choose_the_smoothing_and_say_so():
+    paper, quick = make_config("paper", "tps"), make_config("quick", "tps")
+    assert (paper.options.smoothing, paper.options.scale_invariant) == (tps.PAPER_SMOOTHING, True)
+    assert (quick.options.smoothing, quick.options.scale_invariant) == (tps.SMOOTHING, False)
+    assert make_config("paper", "tps-textured").options.scale_invariant
+    assert make_config("quick", "tps-textured").options.smoothing == tps.SMOOTHING_TEXTURED
+    assert (paper.options.label(), quick.options.label()) == ("λ = 0.0347·α²", "λ = 0.01")
+    assert official_tag(paper) == "TPS_125_lambda0.0347alpha2"
+    assert official_tag(make_config("quick", "tps-textured", n_train=250)) == "TPS_textured_250_lambda0.003"
 
 
 def test_tps_interpolates_samples_exactly_without_smoothing():
@@ -336,7 +381,9 @@ def test_tps_fit_uses_the_smoothing_option(name, data, tmp_path):
 
 
 @pytest.mark.parametrize("options, message", [
-    (dict(smoothing=-1.0), "option smoothing = -1.0: expected a number >= 0"),
+    (dict(smoothing=-1.0), "option smoothing = -1.0: expected a finite number >= 0"),
+    (dict(smoothing=float("inf")), "option smoothing = inf: expected a finite number >= 0"),
+    (dict(scale_invariant=1), "option scale_invariant = 1: expected true or false"),
     (dict(workers=0), "option workers = 0: expected a positive integer"),
     (dict(max_samples=3), "option max_samples = 3: expected an integer >= 4"),
 ])

@@ -25,7 +25,8 @@ def official_tag(cfg: TrainConfig, pretrained: bool = False) -> str:
     ``<model>`` is the method's ``official_name`` (``_pretrained`` appended for a pre-trained
     initialisation); ``<ntrain>`` the training pairs it fits (125 for a method that fits the plain
     colours whatever ``n_train``); a method without a ``loss``, ``batch`` or ``iters`` option leaves
-    that field out (TPS: ``TPS_125``; pix2pix: ``pix2pix_125_1_10000``).
+    that field out (pix2pix: ``pix2pix_125_1_10000``); options that name themselves in the tag
+    (:meth:`~compensation.training.config.Options.tag`: a spline's smoothing) come last.
 
     Examples
     --------
@@ -33,15 +34,16 @@ def official_tag(cfg: TrainConfig, pretrained: bool = False) -> str:
     >>> official_tag(make_config("paper", "compennet"))
     'CompenNet_l1+ssim_500_64_1000'
     >>> official_tag(make_config("quick", "tps-textured", n_train=250))
-    'TPS_textured_250'
-    >>> official_tag(make_config("quick", "tps", n_train=250))
-    'TPS_125'
+    'TPS_textured_250_lambda0.003'
+    >>> official_tag(make_config("paper", "tps", n_train=250))
+    'TPS_125_lambda0.0347alpha2'
     """
     options, method = cfg.options, get_method(cfg.method)
     model = method.official_name + ("_pretrained" if pretrained else "")
     n_train = N_PLAIN if method.plain_colours else cfg.n_train
     fields = [model] + ([options.loss] if hasattr(options, "loss") else []) + [str(n_train)]
-    return "_".join(fields + [str(getattr(options, k)) for k in ("batch", "iters") if hasattr(options, k)])
+    fields += [str(getattr(options, k)) for k in ("batch", "iters") if hasattr(options, k)]
+    return "_".join(fields + ([options.tag()] if options.tag() else []))
 
 
 def official_uint8(image: np.ndarray) -> np.ndarray:

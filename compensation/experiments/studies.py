@@ -12,6 +12,7 @@ A study file (TOML; the shipped ones are ``scenes/studies/*.toml``)::
     size = 64                       # canonical pixels, N or [W, H]; default: the profile's
     profile = "quick"               # training profile, optional
     render_seeds = false            # optional: true renders every seed's own dataset too
+    only = ["light1_*"]             # optional: setup-name patterns or point numbers to run (as --only)
 
     [setup]                         # optional: partial setup values applied to every point
     projector = { focus_distance = 0.8 }
@@ -65,7 +66,7 @@ from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
 from sim.setup.schema import SECTIONS
 
 STUDY_KEYS = ("name", "question", "base", "methods", "seeds", "n_train", "n_test", "size", "profile",
-              "render_seeds", "setup", "options", "axis")
+              "render_seeds", "only", "setup", "options", "axis")
 """Keys of a study file."""
 AXIS_KEYS = ("key", "values", "label", "unit")
 """Keys of an ``[[axis]]`` table."""
@@ -223,13 +224,17 @@ def load_study(path: Path | str) -> Study:
         raise _error(path, "setup", fixed, "expected a table of setup sections (without a name)")
     if not isinstance(data.get("render_seeds", False), bool):
         raise _error(path, "render_seeds", data["render_seeds"], "expected true or false")
+    only = data.get("only", [])
+    if not isinstance(only, list) or not all(isinstance(o, str) and o.strip() for o in only):
+        raise _error(path, "only", only, "expected a list of setup-name patterns or point numbers")
     return Study(
         path=path, name=data.get("name", path.stem), question=data.get("question", ""),
         base=data["base"], axes=axes, methods=tuple(methods), seeds=tuple(seeds),
         n_train=_positive_ints(path, "n_train", data.get("n_train", defaults["n_train"])),
         n_test=_positive_ints(path, "n_test", data.get("n_test", defaults["n_test"]), False)[0],
         size=_size(path, data.get("size", defaults["size"])), profile=profile,
-        render_seeds=data.get("render_seeds", False), setup=dict(fixed), options=dict(options))
+        render_seeds=data.get("render_seeds", False), setup=dict(fixed), options=dict(options),
+        only=tuple(o.strip() for o in only))
 
 
 def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: tuple[int, ...] | None = None,
@@ -391,7 +396,8 @@ def study_record(study: Study, plan: Plan, kind: str = "study") -> dict:
                      for a in study.axes],
             "methods": list(study.methods), "seeds": list(study.seeds), "n_train": sizes,
             "n_test": study.n_test, "size": list(study.size), "profile": study.profile,
-            "render_seeds": study.render_seeds, "setup_values": study.setup, "options": study.options,
+            "render_seeds": study.render_seeds, "only": list(study.only), "setup_values": study.setup,
+            "options": study.options,
             "overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in study.overrides.items()},
             "study_file": str(study.path.resolve()),
             "setups": {name: f"data/{name}/setup.toml" for name in plan.setups}}

@@ -28,6 +28,31 @@ always notice (no zero pivot, coefficients of 1e16), so a LAPACK condition estim
 :data:`RCOND_MIN` sends the pixel to minimum-norm least squares, and the fit statistics count
 it.
 
+How the CompenNet paper ran TPS. The paper compares with TPS (Grundhöfer & Iwai 2015) fitted on
+125 plain colours and "TPS textured" fitted on the textured training images; its authors released
+no TPS code (asked on the CompenNet repository's issue tracker, the author points to the public
+reimplementation pjessesco/grundhofer2015 as "compatible with CompenNet dataset"). What each
+source states, and what none does:
+
+- Samples: the dataset's ``ref/img_0001 … img_0125`` are "plain color training images used by
+  TPS-based method" (CompenNet README), black first and white last; a 5³ grid fits, its five
+  levels are not stated. TPS textured: no source states the count; the reimplementation uses 500,
+  the paper's training-set size (here: all training pairs up to :data:`MAX_SAMPLES`).
+- Saturated samples: the README's capture rule makes plain white slightly over- and plain black
+  slightly under-expose the camera, so the real data hold clipped, duplicate centres; no source
+  states how the paper's fit treated them (the reimplementation does nothing special: its ridge
+  keeps the system solvable, as λ > 0 does here).
+- Kernel, direction, colour space: the reimplementation fits per pixel captured camera colour →
+  projector input with r² log₂ r and an affine part on encoded 8-bit values / 255, no
+  linearisation; the paper states none of these (Grundhöfer & Iwai describe a calibration-free
+  per-pixel scattered-data interpolation of the colour mapping). procam fits the same.
+- Smoothing: the paper states no λ. The reimplementation adds 0.05·α² to the kernel diagonal, α
+  the pixel's mean distance between its captured colours (a scale-invariant ridge), i.e.
+  :data:`PAPER_SMOOTHING`·α² in procam's kernel: the ``paper`` profile's setting
+  (``scale_invariant``). The ``quick`` profile keeps λ tuned on procam's simulated pixels
+  (:data:`SMOOTHING`, :data:`SMOOTHING_TEXTURED`). Both are recorded in Table 1's rows and in the
+  official tag (``TPS_125_lambda0.0347alpha2``).
+
 Speed. Fit time measured on this project's CPU (2 cores shared with other work, load ≈ 7;
 scipy 1.17 with OpenBLAS, torch 2.13 CPU with MKL), n = 125 samples per pixel, λ = 1e-2, best
 of 2–3 runs:
@@ -52,6 +77,7 @@ worker holds one (n + 4)² system at a time.
 """
 from __future__ import annotations
 
+import math
 import multiprocessing
 import sys
 import time
@@ -83,6 +109,11 @@ black, random albedo, ambient light, sRGB or linear camera, 8-bit; 16 × 16 pixe
 random test frames), by the test PSNR of π†(x̃) vs x over λ = 1e-3 … 1, for three sensor-noise
 levels (none; shot 2e-4 + read 2e-3; shot 1e-3 + read 5e-3): λ = 1e-2 is within 0.3 dB of the
 best λ in all six conditions."""
+PAPER_SMOOTHING = 0.05 * math.log(2)
+"""λ of the paper profile, applied per pixel as λ·α² (``scale_invariant``): the public
+reimplementation the CompenNet paper's author points users to (his own TPS code is unreleased)
+adds 0.05·α² to the diagonal of a kernel r² log₂ r; with procam's kernel r² ln r that is
+0.05·ln 2·α² ≈ 0.0347·α² (about 0.023 for colours filling the RGB cube, α = 0.81)."""
 SMOOTHING_TEXTURED = 3e-3
 """Default smoothing λ of ``tps-textured`` (250 textured samples in the study above): within
 0.9 dB of the best λ in all six conditions (λ = 1e-2 loses up to 1.6 dB without noise)."""
@@ -126,8 +157,8 @@ def pixel_samples(images: torch.Tensor) -> np.ndarray:
     return images.detach().to("cpu", torch.float32).permute(2, 3, 0, 1).reshape(h * w, n, 3).numpy().copy()
 
 
-def fit_pixel_splines(centres: np.ndarray, values: np.ndarray,
-                      smoothing: float = SMOOTHING) -> tuple[np.ndarray, float, int]:
+def fit_pixel_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOOTHING,
+                      scale_invariant: bool = False) -> tuple[np.ndarray, float, int]:
     """Fit one spline per pixel, one LAPACK solve after another, in this process.
 
     Parameters
@@ -138,6 +169,9 @@ def fit_pixel_splines(centres: np.ndarray, values: np.ndarray,
         (P, n, 3) sample outputs xᵢ per pixel (projector inputs, [0, 1]).
     smoothing : float
         λ ≥ 0 added to the kernel diagonal; 0 interpolates exactly (distinct centres only).
+    scale_invariant : bool
+        Add λ·α² instead, α the pixel's mean distance between its centres (over all n² pairs,
+        :func:`pixel_alpha`).
 
     Returns
     -------
@@ -160,8 +194,9 @@ def fit_pixel_splines(centres: np.ndarray, values: np.ndarray,
     for p in range(count):
         c = centres[p]
         r = cdist(c, c)
+        lam = smoothing * pixel_alpha(r) ** 2 if scale_invariant else smoothing
         lhs[:n, :n] = r * r * np.log(r, out=np.zeros_like(r), where=r > 0)  # φ(0) = 0
-        lhs.flat[:n * (n + 5):n + 5] = smoothing  # the first n diagonal entries
+        lhs.flat[:n * (n + 5):n + 5] = lam  # the first n diagonal entries
         lhs[:n, n:n + 3] = c
         lhs[:n, n + 3] = 1.0
         lhs[n:, :n] = lhs[:n, n:].T
@@ -169,24 +204,34 @@ def fit_pixel_splines(centres: np.ndarray, values: np.ndarray,
         # dgesv, not dgetrf + dgetrs: this OpenBLAS's dgetrs takes ~10 ms for three columns.
         lu, _, x, info = lapack.dgesv(lhs, rhs)
         if info == 0 and lapack.dgecon(lu, np.linalg.norm(lhs, 1), norm="1")[0] >= RCOND_MIN:
-            residual += smoothing * float(np.abs(x[:n]).sum())  # f(c̃ᵢ) − xᵢ = −λ wᵢ
+            residual += lam * float(np.abs(x[:n]).sum())  # f(c̃ᵢ) − xᵢ = −λ wᵢ
         else:
             x = lstsq(lhs, rhs)[0]
-            residual += float(np.abs(lhs[:n] @ x - smoothing * x[:n] - values[p]).sum())
+            residual += float(np.abs(lhs[:n] @ x - lam * x[:n] - values[p]).sum())
             degenerate += 1
         coeffs[p] = x
     return coeffs, residual, degenerate
 
 
-def _fit_task(task: tuple[np.ndarray, np.ndarray, float]) -> tuple[np.ndarray, float, int]:
+def pixel_alpha(distances: np.ndarray) -> float:
+    """α of the scale-invariant smoothing: the mean of a pixel's (n, n) centre distances, the zero
+    diagonal included.
+
+    >>> pixel_alpha(np.array([[0.0, 1.0], [1.0, 0.0]]))
+    0.5
+    """
+    return float(distances.sum()) / distances.size
+
+
+def _fit_task(task: tuple[np.ndarray, np.ndarray, float, bool]) -> tuple[np.ndarray, float, int]:
     """Worker entry point: :func:`fit_pixel_splines` on one chunk, coefficients as float32."""
     coeffs, residual, degenerate = fit_pixel_splines(*task)
     return coeffs.astype(np.float32), residual, degenerate
 
 
 def fit_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOOTHING,
-                workers: int | None = None, progress: bool = False,
-                desc: str = "fit tps") -> tuple[np.ndarray, float, int]:
+                workers: int | None = None, progress: bool = False, desc: str = "fit tps",
+                scale_invariant: bool = False) -> tuple[np.ndarray, float, int]:
     """Fit one spline per pixel in a pool of worker processes.
 
     Pixels are split into tasks (see :data:`_TASK_SIZE`); each worker runs
@@ -205,6 +250,8 @@ def fit_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOO
         Show a progress bar over pixels.
     desc : str
         Progress bar label.
+    scale_invariant : bool
+        λ·α² per pixel instead of λ (:func:`fit_pixel_splines`).
 
     Returns
     -------
@@ -227,7 +274,8 @@ def fit_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOO
         raise ValueError(f"spline smoothing = {smoothing!r}: expected a number >= 0")
     count, n, _ = centres.shape
     chunk = max(1, _TASK_SIZE // (n + 4) ** 2)
-    tasks = ((centres[s:s + chunk], values[s:s + chunk], smoothing) for s in range(0, count, chunk))
+    tasks = ((centres[s:s + chunk], values[s:s + chunk], smoothing, scale_invariant)
+             for s in range(0, count, chunk))
     workers = usable_cores() if workers is None else workers
     coeffs = np.empty((count, n + 4, 3), np.float32)
     residual, degenerate, done = 0.0, 0, 0
@@ -284,14 +332,30 @@ def _pixel_images(values: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 class TPSOptions(Options):
     """Options of ``tps`` (splines on the 125 plain colours)."""
 
+    profiles = {"paper": dict(smoothing=PAPER_SMOOTHING, scale_invariant=True)}
+
     smoothing: float = SMOOTHING
-    """λ >= 0 added to the kernel diagonal (see :data:`SMOOTHING` for how 1e-2 was chosen)."""
+    """λ >= 0 added to the kernel diagonal (see :data:`SMOOTHING` for how 1e-2 was chosen; the
+    paper profile: :data:`PAPER_SMOOTHING`, scale-invariant)."""
+    scale_invariant: bool = False
+    """Multiply λ per pixel by α², α the mean distance between the pixel's captured colours
+    (the regularisation of the reimplementation the paper's author points to; paper profile)."""
     workers: int | None = None
     """Worker processes for the fit (>= 1); None: one per usable CPU core. Does not change results."""
 
     def check(self) -> None:
-        self._require("smoothing", self.smoothing >= 0, "a number >= 0")
+        self._require("smoothing", isinstance(self.smoothing, (int, float)) and not isinstance(self.smoothing, bool)
+                      and 0 <= self.smoothing < float("inf"), "a finite number >= 0")
+        self._require("scale_invariant", isinstance(self.scale_invariant, bool), "true or false")
         self._positive_ints("workers")
+
+    def label(self) -> str:
+        """The smoothing as Table 1 names it: ``λ = 0.01`` or ``λ = 0.0347·α²``."""
+        return f"λ = {self.smoothing:.3g}" + ("·α²" if self.scale_invariant else "")
+
+    def tag(self) -> str:
+        """The smoothing in the official tag: ``lambda0.01`` or ``lambda0.0347alpha2``."""
+        return f"lambda{self.smoothing:.3g}" + ("alpha2" if self.scale_invariant else "")
 
 
 @dataclass(frozen=True)
@@ -299,7 +363,8 @@ class TPSTexturedOptions(TPSOptions):
     """Options of ``tps-textured`` (splines on the textured training pairs)."""
 
     smoothing: float = SMOOTHING_TEXTURED
-    """λ >= 0 added to the kernel diagonal (see :data:`SMOOTHING_TEXTURED`)."""
+    """λ >= 0 added to the kernel diagonal (see :data:`SMOOTHING_TEXTURED`; the paper profile:
+    :data:`PAPER_SMOOTHING`, scale-invariant)."""
     max_samples: int = MAX_SAMPLES
     """Most sample pairs per pixel (>= 4; the paper's 500 training pairs); more pairs are
     subsampled at random (seeded), the same for every pixel."""
@@ -355,7 +420,8 @@ class TPSMethod(Method):
         start = time.perf_counter()
         centres = pixel_samples(pairs.captures)
         coeffs, residual, degenerate = fit_splines(centres, pixel_samples(pairs.frames), self.smoothing,
-                                                   cfg.options.workers, progress, f"fit {self.name}")
+                                                   cfg.options.workers, progress, f"fit {self.name}",
+                                                   cfg.options.scale_invariant)
         seconds = time.perf_counter() - start
         self._set_state(tuple(pairs.captures.shape[-2:]), torch.from_numpy(centres),
                         torch.from_numpy(coeffs))

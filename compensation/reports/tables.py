@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from compensation.experiments.bench import LOSSES, TABLE2, BenchConfig, BenchResult
-from compensation.methods import METHODS
+from compensation.methods import METHODS, applicable, make_config
 from sim.io import atomic_write, write_json, write_text
 
 METRICS = ("psnr", "rmse", "ssim", "deltaE")
@@ -106,6 +106,13 @@ def _correlation_note(rows: list[dict]) -> str:
             f"{len(pairs)} runs: " + ", ".join(parts) + ". CL columns: closed loop.")
 
 
+def _named(cfg: BenchConfig, method: str) -> str:
+    """A method's row name: its registry name, with what its options say of themselves
+    (:meth:`~compensation.training.config.Options.label`, e.g. ``tps (λ = 0.01)``)."""
+    label = make_config(cfg.profile, method, **applicable(method, cfg.overrides)).options.label()
+    return f"{method} ({label})" if label else method
+
+
 def write_tables(out: Path, cfg: BenchConfig, result: BenchResult) -> dict:
     """Write ``table{1,2,3}.{md,csv}``, ``per_setup.{md,csv}``, ``failures.json`` and ``bench.json``.
 
@@ -140,7 +147,7 @@ def write_tables(out: Path, cfg: BenchConfig, result: BenchResult) -> dict:
     not_simulated = sorted(s for s, u in uncompensated.items() if "closed_loop" not in u)
     if "1" in cfg.tables:
         t1 = [r for r in rows if r["table"] == "1"]
-        body = [unc_row] + [line(m, n, [r for r in t1 if r["method"] == m and r["n_train"] == n],
+        body = [unc_row] + [line(_named(cfg, m), n, [r for r in t1 if r["method"] == m and r["n_train"] == n],
                                  PAPER_TABLE1.get((METHODS[m].official_name, n)))
                             for m in cfg.methods for n in cfg.sizes]
         for k in sorted({row["iterations"] for rs in oracle.values() for row in rs}):

@@ -50,6 +50,15 @@ class Options:
             self._require(name, value is None or (isinstance(value, int) and not isinstance(value, bool)
                                                   and value >= 1), "a positive integer")
 
+    def label(self) -> str:
+        """What a table names beside the method when its rows could differ in these options (e.g.
+        a spline's smoothing); empty by default."""
+        return ""
+
+    def tag(self) -> str:
+        """The same in an official output tag (letters, digits, ``.``; empty by default)."""
+        return ""
+
     @classmethod
     def names(cls) -> tuple[str, ...]:
         """The option names, in declaration order."""
