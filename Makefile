@@ -1,4 +1,4 @@
-# procam — the two commands of the README: `make demo` and `make test`.
+# procam — the commands of the README: `make demo`, `make test` and `make test-fast`.
 # Each creates or refreshes .venv and installs what is missing (system libraries included).
 
 PYTHON ?= python3.11
@@ -9,14 +9,19 @@ TORCH_SPEC ?= torch==2.13.0
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.procam-installed
 
-.PHONY: demo test venv llvm chromium bench clean-venv
+.PHONY: demo test test-fast venv llvm chromium bench clean-venv
 
 # Passive OpenMP waiting: with spinning threads torch slows down 10-30x when the cores are shared.
 demo: venv llvm
 	OMP_WAIT_POLICY=PASSIVE $(VENV)/bin/procam demo --out data
 
+# The whole suite, its 15 slowest tests listed.
 test: venv llvm chromium
-	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q
+	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q --durations=15
+
+# The inner loop while editing (under 2 minutes on 2 cores): the suite without the tests marked slow.
+test-fast: venv llvm
+	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q -m "not slow" --durations=15
 
 # Speed figures, measured side by side (a few minutes on 2 cores); see benchmarks/results/.
 bench: venv llvm

@@ -16,6 +16,8 @@ from compensation.cli import main
 from compensation.experiments.plans import slug
 from compensation.methods import METHODS
 
+pytestmark = pytest.mark.slow  # every test reads the module's bench, which renders and trains (~25 s)
+
 SUITE = """
 base = "base.toml"
 [[setup]]

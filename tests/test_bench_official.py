@@ -42,6 +42,7 @@ def _rows(path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_found_setups_and_tables(bench):
     out = bench / "out"
     per = _rows(out / "per_setup.csv")
@@ -63,6 +64,7 @@ def test_found_setups_and_tables(bench):
     assert "No pre-trained run finished" in (out / "table2.md").read_text()
 
 
+@pytest.mark.slow
 def test_official_outputs(bench):
     """π†(x̃) of the test captures in cam/cmp/<tag>, π†(y) of the test images in prj/cmp/<tag>."""
     out = bench / "out"

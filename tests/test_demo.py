@@ -21,6 +21,7 @@ REACHABLE_MARGIN_DB = 4.0
 """The same on the reachable pixels only (measured +6.4 and +8.0 dB)."""
 
 
+@pytest.mark.slow
 def test_demo_tiny(tmp_path, capsys):
     results = run_demo(tmp_path, progress=False, **SMALL)
     out = capsys.readouterr().out

@@ -53,6 +53,7 @@ def _table(path: Path) -> list[dict]:
         return [{k: v for k, v in row.items() if k not in TIMINGS} for row in csv.DictReader(f)]
 
 
+@pytest.mark.slow
 def test_ray_bench_equals_local(tmp_path):
     ray = pytest.importorskip("ray")
     from compensation.experiments.executors import RayExecutor

@@ -216,6 +216,7 @@ def test_cuda_variant_without_a_gpu_is_refused():
         check_forced("cuda_ad_rgb")
 
 
+@pytest.mark.slow
 def test_bad_variant_from_the_command_line(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "compensation.cli", "render", str(tiny_setup_file(tmp_path)),
                            "--out", str(tmp_path / "data"), *ARGS],
@@ -227,6 +228,7 @@ def test_bad_variant_from_the_command_line(tmp_path):
 
 # ------------------------------------------------------------------------ kill -9, resume, same bytes
 
+@pytest.mark.slow
 def test_killed_at_every_stage_resumes_to_the_same_bytes(reference, tmp_path, capsys):
     root = tmp_path / "data"
     argv = ["render", str(tiny_setup_file(tmp_path)), "--out", str(root), *ARGS]
@@ -314,6 +316,7 @@ def test_finished_setup_rendered_otherwise_is_refused(reference, tmp_path, capsy
     assert _snapshot(root) == before
 
 
+@pytest.mark.slow
 def test_overwrite_renders_every_capture_again(reference, tmp_path):
     """--overwrite after a change of setup (or of a record) replaces every capture."""
     fresh = tmp_path / "fresh"
@@ -366,6 +369,7 @@ def test_a_root_held_by_another_writer_is_refused(tmp_path, capsys):
     assert sorted(p.name for p in root.iterdir()) == [".lock"]
 
 
+@pytest.mark.slow
 def test_concurrent_renders_with_other_frame_seeds_one_refused(tmp_path):
     setup = tiny_setup_file(tmp_path)
     procs = [subprocess.Popen([sys.executable, "-m", "compensation.cli", "render", str(setup), "--out",
@@ -380,6 +384,7 @@ def test_concurrent_renders_with_other_frame_seeds_one_refused(tmp_path):
     assert read_png(tmp_path / "data" / "tiny" / "cam" / "warp" / "test" / "img_0001.png").shape == (32, 32, 3)
 
 
+@pytest.mark.slow
 def test_overwrite_repairs_a_damaged_capture_of_a_finished_setup(tmp_path, capsys):
     """A capture damaged after the setup finished is rewritten by --overwrite to its original bytes."""
     from compensation.cli import main as procam

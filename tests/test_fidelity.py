@@ -61,6 +61,7 @@ def test_auto_picks_a_direct_light_level_for_a_plane():
     assert tried[-1] == choice.spp and all(c["error_over_floor"] > 1 for c in choice.candidates[:-1])
 
 
+@pytest.mark.slow
 def test_auto_picks_path_depth_3_for_a_corner():
     setup = tiny_setup(camera=NOISY, surface=CORNER, projector={"position": [0.0, 0.0, 1.2]},
                        render={"fidelity": "auto", "max_depth": 3})
@@ -90,6 +91,7 @@ def test_each_level_refuses_what_it_cannot_represent():
         check_level(corner, "fast")
 
 
+@pytest.mark.slow
 def test_dataset_records_the_choice_and_reuses_the_operator(tmp_path):
     setup = tiny_setup(camera=NOISY, render={"fidelity": "auto"})
     spec = FrameSpec(n_train=2, n_test=1, size=(32, 32))
@@ -106,6 +108,7 @@ def test_dataset_records_the_choice_and_reuses_the_operator(tmp_path):
     assert meta["transport"]["loaded_from_cache"] and meta["counts"]["train"] == 3
 
 
+@pytest.mark.slow
 def test_cli_render_transport_and_bench_sim(tmp_path, capsys):
     from compensation.cli import main
 

@@ -64,6 +64,7 @@ def foreign_option(name: str) -> str:
     return next(option for option in sorted(option_owners()) if option not in mine)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(METHODS))
 def test_method_contract(name, dim, tmp_path):
     cls = get_method(name)

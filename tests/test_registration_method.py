@@ -50,6 +50,7 @@ def _meta(root, name):
     return json.loads((root / name / "meta.json").read_text())
 
 
+@pytest.mark.slow
 def test_auto_on_a_plane_warps_by_the_estimated_homography(rendered):
     reg = _meta(rendered, "auto")["registration"]
     assert reg["method"] == "homography" and reg["requested"] == "auto" and reg["jitter"] == 0.0
@@ -62,6 +63,7 @@ def test_auto_on_a_plane_warps_by_the_estimated_homography(rendered):
     assert exact["method"] == "exact" and exact["homography"]["matrix"] == reg["homography"]["matrix"]
 
 
+@pytest.mark.slow
 def test_homography_captures_are_close_to_the_exact_ones(rendered):
     """Same raw captures, two warps: within a small fraction of a pixel they agree to well above
     the camera noise's PSNR; corners jittered by 1.5 px are visibly worse."""
@@ -76,6 +78,7 @@ def test_homography_captures_are_close_to_the_exact_ones(rendered):
         assert _psnr(jitter, exact) < _psnr(auto, exact) - 10
 
 
+@pytest.mark.slow
 def test_ground_truth_and_records_are_on_disk(rendered):
     for name in ("auto", "exact", "jitter"):
         folder = rendered / name / "registration"
@@ -90,6 +93,7 @@ def test_ground_truth_and_records_are_on_disk(rendered):
         assert np.asarray(record["homography"]["matrix"]).shape == (3, 3)
 
 
+@pytest.mark.slow
 def test_exact_method_warps_with_the_recorded_ground_truth(rendered):
     """With ``method = "exact"`` each warped capture is its raw capture warped by the saved map."""
     with np.load(rendered / "exact" / "registration" / "exact_map.npz") as saved:
@@ -101,6 +105,7 @@ def test_exact_method_warps_with_the_recorded_ground_truth(rendered):
                               registration.warp(raw, wmap))
 
 
+@pytest.mark.slow
 def test_closed_loop_warps_as_its_dataset(rendered):
     """The closed loop's simulator re-estimates the same homography from the same seeded
     checkerboard captures, so its captures are warped as the dataset's."""

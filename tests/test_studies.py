@@ -155,6 +155,7 @@ def tiny(tmp_path_factory):
     return tmp
 
 
+@pytest.mark.slow
 def test_study_folder(tiny):
     out = tiny / "out"
     record = json.loads((out / "study.json").read_text())
@@ -198,6 +199,7 @@ def test_study_folder(tiny):
     assert black["0.1"].mean() > 2 * black["0.02"].mean()
 
 
+@pytest.mark.slow
 def test_resume_fits_nothing_and_a_failure_is_a_row(tiny, monkeypatch, capsys):
     out = tiny / "out"
     args = ["study", str(tiny / "tiny.toml"), "--out", str(out), "--quiet"]
@@ -243,6 +245,7 @@ def test_run_status(tmp_path):
     assert run_status(ok, tmp_path) == ("diverged", "training loss grew above 1.5x its first value")
 
 
+@pytest.mark.slow
 def test_a_setup_that_cannot_render_fails_its_rows_only(tiny, monkeypatch, capsys):
     import compensation.experiments.jobs as jobs
 

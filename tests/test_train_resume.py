@@ -66,6 +66,7 @@ def test_resume_is_bit_identical(setup_dir, tmp_path, method, how):
     assert (tmp_path / "whole" / "loss.csv").read_text() == (run / "loss.csv").read_text()
 
 
+@pytest.mark.slow
 def test_changed_config_discards_partial_state(setup_dir, tmp_path):
     """A partial run of another configuration is not resumed: it is replaced."""
     from compensation.methods import make_config

@@ -161,6 +161,7 @@ def test_patch_option_is_checked(data):
         method.fit(data, cfg, progress=False)
 
 
+@pytest.mark.slow
 def test_patch_training_learns(setup_dir, tmp_path):
     opt = CompenNetOptions(iters=200, batch=8, lr_step=160, patch=16)
     cfg = TrainConfig(method="compennet", options=opt, eval_batch=8, device="cpu", n_train=None,
