@@ -1,9 +1,11 @@
 """Helpers shared by the test modules: the tiny setups the physics and end-to-end tests build on,
 as validated setups (:func:`tiny_setup`) or as setup files (:func:`tiny_toml`,
-:func:`tiny_setup_file`), and the options of the tiny rendered dataset (:data:`TINY_RENDER`)."""
+:func:`tiny_setup_file`), the options of the tiny rendered dataset (:data:`TINY_RENDER`), and the
+rows of the CSV files procam writes (:func:`csv_rows`)."""
 from __future__ import annotations
 
 import copy
+import csv
 from pathlib import Path
 
 import tomli_w
@@ -62,3 +64,9 @@ def tiny_setup_file(folder: Path, file: str = "tiny.toml", **keys) -> Path:
 
 TINY_RENDER = ["--size", "32", "--n-train", "2", "--n-test", "1", "--quiet"]
 """`procam render` options of the tiny rendered dataset (the session fixture ``tiny_render``)."""
+
+
+def csv_rows(path: Path) -> list[dict]:
+    """The rows of the CSV file at ``path``, each a dict keyed by the header."""
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))

@@ -2,7 +2,6 @@
 uncompensated, options per method, resumable, failures kept apart."""
 from __future__ import annotations
 
-import csv
 import json
 import math
 import shutil
@@ -11,7 +10,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import pytest
 
-from helpers import tiny_toml
+from helpers import csv_rows, tiny_toml
 from compensation.cli import main
 from compensation.experiments.plans import slug
 from compensation.methods import METHODS
@@ -54,11 +53,6 @@ def bench(tmp_path_factory):
     return tmp
 
 
-def _rows(path: Path) -> list[dict]:
-    with open(path) as f:
-        return list(csv.DictReader(f))
-
-
 def _by_method(rows: list[dict]) -> dict[tuple[str, str], dict]:
     return {(r["method"], r["n_train"]): r for r in rows}
 
@@ -74,19 +68,19 @@ def test_tables_and_their_rows(bench):
         assert (out / f"{name}.md").exists() and (out / f"{name}.csv").exists()
     for name in ("table1", "table2", "table3"):
         assert (out / f"{name}.md").read_text().startswith(f"# Table {name[-1]}")
-    t1 = _rows(out / "table1.csv")
+    t1 = csv_rows(out / "table1.csv")
     assert [(r["method"], r["n_train"]) for r in t1] == (
         [("uncompensated", "-")] + [(ROW_NAMES.get(m, m), n) for m in methods for n in ("4", "8")]
         + [(f"iterative refinement ({k} it., {2 * (k + 1)} proj.)", "-") for k in (1, 2, 4, 8)])
     assert all(r["setups"] == "2" for r in t1)
-    t2 = _rows(out / "table2.csv")
+    t2 = csv_rows(out / "table2.csv")
     assert [(r["method"], r["n_train"], r["setups"]) for r in t2] == [
         ("CompenNet, He init", "32", "2"), ("CompenNet, pre-trained on white", "32", "2")]
     assert "(32 pairs, 3 iterations, batch 2)" in (out / "table2.md").read_text()
-    t3 = _rows(out / "table3.csv")
+    t3 = csv_rows(out / "table3.csv")
     assert [(r["method"], r["n_train"], r["setups"]) for r in t3] == [
         (f"CompenNet, loss {loss}", "8", "2") for loss in ("l1", "l2", "ssim", "l1+ssim")]
-    per = _rows(out / "per_setup.csv")
+    per = csv_rows(out / "per_setup.csv")
     assert sorted((r["table"], r["setup"]) for r in per) == sorted(
         [("1", s) for s in ("s1", "s2") for _ in range(2 * len(methods))]
         + [("2", s) for s in ("s1", "s2") for _ in range(2)]
@@ -131,7 +125,7 @@ def test_baselines_beat_uncompensated(bench):
     """tps and nayar invert the setups' colour mixing; compennet with 3 iterations cannot yet, so it
     is held to finite scores only. The feedback oracle converges towards the reachable optimum."""
     out = bench / "bench"
-    t1 = _by_method(_rows(out / "table1.csv"))
+    t1 = _by_method(csv_rows(out / "table1.csv"))
     unc = t1[("uncompensated", "-")]
     assert unc["infer ms/frame"] == "-"
     assert float(unc["CL PSNR"]) == pytest.approx(float(unc["PSNR"]), abs=1e-3)  # y as is: the test captures
@@ -143,7 +137,7 @@ def test_baselines_beat_uncompensated(bench):
             reachable_gain = float(row["CL PSNR reachable"]) - float(unc["CL PSNR reachable"])
             assert reachable_gain > 2 * CLOSED_LOOP_MARGIN_DB
             assert float(row["SSIM"]) > float(unc["SSIM"])
-    for r in _rows(out / "per_setup.csv"):
+    for r in csv_rows(out / "per_setup.csv"):
         if r["method"] in ("tps", "nayar"):
             assert float(r["PSNR"]) > float(r["unc PSNR"]) + BASELINE_MARGIN_DB, r
         assert all(math.isfinite(float(r[k])) for k in ("PSNR", "RMSE", "SSIM", "CL PSNR")), r
@@ -164,8 +158,7 @@ def test_report_of_the_closed_loop_bench(bench, capsys):
     page = (out / "report.html").read_text()
     assert "Table 1" in page and "paper PSNR" in page and page.count("data:image/png;base64,") >= 2
     assert (out / "charts" / "speed.png").is_file() and (out / "charts" / "grid_point0.png").is_file()
-    with open(out / "summary.csv", newline="") as f:
-        summary = {(r["method"], r["n_train"]): r for r in csv.DictReader(f)}
+    summary = {(r["method"], r["n_train"]): r for r in csv_rows(out / "summary.csv")}
     for n in ("4", "8"):
         tps = summary[("tps", n)]
         assert float(tps["cl_psnr_mean"]) > float(tps["cl_unc_psnr_mean"]) + CLOSED_LOOP_MARGIN_DB
@@ -189,7 +182,7 @@ def test_resume_trains_nothing_and_failures_are_isolated(bench, monkeypatch):
     failures = json.loads((bench / "bench" / "failures.json").read_text())["failures"]
     assert {(f["setup"], f["method"]) for f in failures} == {("s1", "nayar")}
     assert all("simulated crash" in f["error"] for f in failures)
-    nayar = [r for r in _rows(bench / "bench" / "table1.csv") if r["method"] == "nayar"]
+    nayar = [r for r in csv_rows(bench / "bench" / "table1.csv") if r["method"] == "nayar"]
     assert {r["setups"] for r in nayar} == {"1"}  # s2 still counted
     monkeypatch.undo()
 

@@ -3,7 +3,6 @@ setups, only cam/warp, img_gray.png, no metadata): the setups are found, nothing
 dataset, the closed loop is left out with the reason, the official outputs are written."""
 from __future__ import annotations
 
-import csv
 import os
 
 import numpy as np
@@ -12,6 +11,7 @@ import pytest
 from compensation.cli import main
 from compensation.data import load_setup_data
 from compensation.experiments.runs import load_run
+from helpers import csv_rows
 from sim.io import read_png, to_uint8
 from synthetic import make_dataset
 
@@ -37,17 +37,12 @@ def bench(tmp_path_factory):
     return tmp
 
 
-def _rows(path) -> list[dict]:
-    with open(path) as f:
-        return list(csv.DictReader(f))
-
-
 @pytest.mark.slow
 def test_found_setups_and_tables(bench):
     out = bench / "out"
-    per = _rows(out / "per_setup.csv")
+    per = csv_rows(out / "per_setup.csv")
     assert sorted({r["setup"] for r in per}) == list(SETUPS)
-    t1 = _rows(out / "table1.csv")
+    t1 = csv_rows(out / "table1.csv")
     assert [(r["method"], r["n_train"], r["setups"]) for r in t1] == [
         ("uncompensated", "-", "2"), ("compennet", "8", "2"), ("tps (λ = 0.01)", "8", "2")]
     # the paper's figures beside procam's: the uncompensated row has them, 8 pairs do not
@@ -59,7 +54,7 @@ def test_found_setups_and_tables(bench):
     assert "32² px" in md
     assert ("Closed loop left out for 2 setup(s) that procam did not simulate (no setup.toml, nothing to "
             f"project through): {', '.join(SETUPS)}.") in md
-    t2 = _rows(out / "table2.csv")
+    t2 = csv_rows(out / "table2.csv")
     assert [(r["setups"], r["paper PSNR"]) for r in t2] == [("2", "19.6767"), ("0", "20.3423")]
     assert "No pre-trained run finished" in (out / "table2.md").read_text()
 

@@ -18,6 +18,7 @@ from compensation.reports.charts import pareto_front, speed_points
 from compensation.reports.report import build_report, load_folder
 from compensation.experiments.jobs import RESULT_COLUMNS
 from compensation.reports.summary import summarize
+from helpers import csv_rows
 from sim.errors import ProcamError
 from sim.io import write_png
 from synthetic import make_dataset
@@ -99,13 +100,8 @@ def study(tmp_path_factory):
     return folder
 
 
-def _csv(path: Path) -> list[dict]:
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
-
-
 def test_summary_mean_std_over_seeds(study):
-    rows = {(r["point"], r["method"]): r for r in _csv(study / "summary.csv")}
+    rows = {(r["point"], r["method"]): r for r in csv_rows(study / "summary.csv")}
     assert len(rows) == 9
     tps0 = rows[("0", "tps")]
     assert float(tps0["cl_psnr_mean"]) == pytest.approx(25.0)
@@ -117,7 +113,7 @@ def test_summary_mean_std_over_seeds(study):
 
 
 def test_break_points(study):
-    breaks = {r["method"]: r for r in _csv(study / "breakpoints.csv")}
+    breaks = {r["method"]: r for r in csv_rows(study / "breakpoints.csv")}
     assert breaks["tps"]["break_value"] == "1" and breaks["tps"]["kind"] == "overtaken"
     assert breaks["tps"]["other"] == "nayar" and breaks["tps"]["point"] == "1"
     assert "nayar" in breaks["tps"]["reason"]
@@ -149,7 +145,7 @@ def test_break_point_by_gain_and_per_second_axis(tmp_path):
 
 
 def test_failures_listed(study):
-    fails = _csv(study / "failures.csv")
+    fails = csv_rows(study / "failures.csv")
     kinds = sorted((f["method"], f["point"], f["seed"], f["kind"]) for f in fails)
     assert kinds == [("compennet", "2", "1", "diverged"), ("tps", "2", "1", "worse")]
     assert next(f for f in fails if f["kind"] == "diverged")["detail"] == "loss inf at iteration 7"
@@ -247,10 +243,10 @@ def test_real_bench_folder(tmp_path, capsys):
     assert "paper PSNR" in page and "Table 1" in page
     _png_ok(out / "charts" / "speed.png")
     _png_ok(out / "charts" / "grid_point0.png", min_side=200)
-    summary = {r["method"]: r for r in _csv(out / "summary.csv")}
+    summary = {r["method"]: r for r in csv_rows(out / "summary.csv")}
     assert set(summary) == {"tps", "nayar"}
     assert float(summary["tps"]["psnr_mean"]) > float(summary["tps"]["unc_psnr_mean"]) + 5
-    assert _csv(out / "breakpoints.csv") == []
+    assert csv_rows(out / "breakpoints.csv") == []
 
 
 def test_training_size_factor():
@@ -283,9 +279,9 @@ def test_bench_results_with_tables(tmp_path):
              for line in text[1:3]]
     (folder / "results.csv").write_text("\n".join([head, *body]) + "\n")
     build_report(folder)
-    summary = _csv(folder / "summary.csv")
+    summary = csv_rows(folder / "summary.csv")
     assert len(summary) == 9 and all(r["runs"] == "2" for r in summary if r["method"] == "compennet")
-    failed = [f for f in _csv(folder / "failures.csv") if f["kind"] == "failed"]
+    failed = [f for f in csv_rows(folder / "failures.csv") if f["kind"] == "failed"]
     assert len(failed) == 2  # the Table 3 failures are listed all the same
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import pytest
 
-from helpers import tiny_toml
+from helpers import csv_rows, tiny_toml
 from compensation.cli import main
 from compensation.experiments.jobs import RESULT_COLUMNS, run_status
 from compensation.reports.summary import STATUSES
@@ -49,11 +49,6 @@ CLOSED_LOOP_MARGIN_DB = 1.0
 +2.2 dB: most of the noise texture's dark pixels cannot reach the desired images)."""
 REACHABLE_MARGIN_DB = 6.0
 """The same on the reachable pixels only (measured +9.6 to +13.3 dB)."""
-
-
-def _rows(path: Path) -> list[dict]:
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
 
 
 def _setup_value(setup, section: str, key: str):
@@ -170,7 +165,7 @@ def test_study_folder(tiny):
         setup = tomllib.loads((out / path).read_text())
         value = 0.02 if name.endswith("0p02") else 0.1
         assert setup["ambient"]["radiance"] == [value] * 3  # the scalar applies to R, G and B
-    rows = _rows(out / "results.csv")
+    rows = csv_rows(out / "results.csv")
     with open(out / "results.csv", newline="") as f:
         assert next(csv.reader(f)) == ["point", "ambient.radiance", *RESULT_COLUMNS]
     assert [(r["point"], r["ambient.radiance"], r["method"], r["n_train"], r["seed"]) for r in rows] == [
@@ -204,12 +199,12 @@ def test_resume_fits_nothing_and_a_failure_is_a_row(tiny, monkeypatch, capsys):
     out = tiny / "out"
     args = ["study", str(tiny / "tiny.toml"), "--out", str(out), "--quiet"]
     stamps = {p: p.stat().st_mtime_ns for p in out.rglob("metrics.json")}
-    before = _rows(out / "results.csv")
+    before = csv_rows(out / "results.csv")
     capsys.readouterr()
     assert main(args) == 0
     assert "4 runs (0 trained, 4 reused)" in capsys.readouterr().out
     assert {p: p.stat().st_mtime_ns for p in out.rglob("metrics.json")} == stamps
-    after = _rows(out / "results.csv")
+    after = csv_rows(out / "results.csv")
     drop = ("fit_s", "infer_ms")  # the reused runs keep their own timings: the whole rows are equal
     assert before == after and all(r[k] for r in after for k in drop)
 
@@ -222,7 +217,7 @@ def test_resume_fits_nothing_and_a_failure_is_a_row(tiny, monkeypatch, capsys):
     shutil.rmtree(failing)
     assert main(args) == 0
     assert "3 reused), 1 failed rows" in capsys.readouterr().out
-    rows = _rows(out / "results.csv")
+    rows = csv_rows(out / "results.csv")
     assert [r["status"] for r in rows] == ["ok", "ok", "ok", "failed"]
     assert set(STATUSES) >= {r["status"] for r in rows}
     failed = rows[-1]
@@ -258,7 +253,7 @@ def test_a_setup_that_cannot_render_fails_its_rows_only(tiny, monkeypatch, capsy
 
     monkeypatch.setattr(jobs, "write_setup", refuse)
     assert main(["study", str(tiny / "tiny.toml"), "--out", str(tiny / "out"), "--quiet"]) == 0
-    rows = _rows(tiny / "out" / "results.csv")
+    rows = csv_rows(tiny / "out" / "results.csv")
     assert [r["status"] for r in rows] == ["ok", "ok", "failed", "failed"]
     assert all(r["error"] == "render of base__ambient-radiance-0p1 failed: ProcamError: simulated refusal"
                for r in rows[2:])
