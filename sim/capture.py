@@ -18,10 +18,12 @@ from typing import TypeVar
 
 import numpy as np
 
-from sim import camera, projector, registration, seeds, surfaces
+from sim import camera, registration, seeds, surfaces
 from sim.cores import usable_cores
 from sim.fidelity import make_renderer, resolve, with_depth
+from sim.projector import chain as projector_chain
 from sim.setup import Setup
+from sim.stages import run
 
 Item = TypeVar("Item")
 Result = TypeVar("Result")
@@ -166,19 +168,19 @@ class Simulator:
     def linear(self, frame: np.ndarray, stream: int, index: int) -> np.ndarray:
         """Linear camera radiance (float32, camera resolution) of one projector frame.
 
-        The projector's contribution is scaled by the lamp's brightness in this capture
-        (:func:`sim.projector.lamp_gain`: flicker per capture, drift at test time); the ambient
-        light is not.
+        The projector's contribution goes through the projector's per-capture stages
+        (:data:`sim.projector.chain.CAPTURE`: the lamp's brightness in this capture, flicker per
+        capture, drift at test time); the ambient light does not.
         """
         t0 = time.perf_counter()
-        r = self.setup.render
+        r, p = self.setup.render, self.setup.projector
         mitsuba_seed = seeds.mitsuba_seed(r.seed, stream, index)
-        gain = projector.lamp_gain(self.setup.projector, r.seed, stream, index)
-        if gain == 1.0:
+        if all(item.is_off(p) for item in projector_chain.CAPTURE):
             out = self.renderer.radiance(frame, mitsuba_seed)
         else:
-            out = (self.renderer.projector_radiance(self.renderer.emit(frame), mitsuba_seed)
-                   * np.float32(gain) + self.renderer.ambient_radiance())
+            light = self.renderer.projector_radiance(self.renderer.emit(frame), mitsuba_seed)
+            out = (run(projector_chain.CAPTURE, light, p, r.seed, stream, index)
+                   + self.renderer.ambient_radiance())
         self.timings["render"] += time.perf_counter() - t0
         return out
 

@@ -29,7 +29,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import Field, dataclass, field, fields
+from dataclasses import Field, dataclass, field, fields, make_dataclass
 from typing import Any
 
 from sim.errors import SetupError
@@ -295,6 +295,52 @@ def option_fields(cls: type) -> list[Field]:
     for f in found:
         spec_of(f)
     return list(found)
+
+
+def combine(name: str, parts: tuple[type, ...], doc: str, module: str) -> type:
+    """One frozen options dataclass whose fields are those of ``parts``, in order (a device's setup
+    section from the options its stages declare, :mod:`sim.setup.schema`).
+
+    Parameters
+    ----------
+    name : str
+        The class's name.
+    parts : tuple of type
+        Options dataclasses, each field declared with this module's helpers.
+    doc : str
+        The class's docstring.
+    module : str
+        The module that holds it as ``name`` (so its instances pickle).
+
+    Raises
+    ------
+    TypeError
+        If two parts declare the same key, or a field is declared without a spec.
+
+    Examples
+    --------
+    >>> @dataclass(frozen=True)
+    ... class Lens:
+    ...     blur: float = number(0.0)
+    >>> @dataclass(frozen=True)
+    ... class Lamp:
+    ...     power: float = number(1.0, POSITIVE, "watts")
+    >>> Device = combine("Device", (Lens, Lamp), "A device.", __name__)
+    >>> Device(power=2.0)
+    Device(blur=0.0, power=2.0)
+    """
+    found: dict[str, type] = {}
+    declared = []
+    for part in parts:
+        for f in option_fields(part):
+            if f.name in found:
+                raise TypeError(f"{name}: key {f.name!r} declared by both {found[f.name].__name__} "
+                                f"and {part.__name__}")
+            found[f.name] = part
+            declared.append((f.name, f.type, field(default=f.default, metadata=f.metadata)))
+    cls = make_dataclass(name, declared, frozen=True)
+    cls.__doc__, cls.__module__ = doc, module
+    return cls
 
 
 def flat_items(options: Any) -> dict[str, Any]:

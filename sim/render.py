@@ -14,7 +14,9 @@ import numpy as np
 
 from sim import projector, scene, seeds
 from sim.io import to_float
+from sim.projector import chain as projector_chain
 from sim.setup import ProjectorConfig, RegistrationConfig, Setup, dump_setup
+from sim.stages import run
 from sim.variant import use_variant
 
 _TEXTURE = f"{scene.PROJECTOR_KEY}.irradiance.data"
@@ -95,15 +97,14 @@ class Renderer:
         Returns
         -------
         numpy.ndarray
-            float32 (Hp + 2 pad, Wp + 2 pad, 3) with ``pad = self.lens.pad``: response, black
-            level, primaries mixing, then the lens (PSF and depth-dependent defocus).
+            float32 (Hp + 2 pad, Wp + 2 pad, 3) with ``pad = self.lens.pad``: the projector's
+            stages before the light transport (:data:`sim.projector.chain.EMISSION`: the scaler,
+            response, black level, primaries mixing, then the lens, PSF and depth-dependent
+            defocus).
         """
         frame = np.asarray(frame)
         x = to_float(frame) if frame.dtype == np.uint8 else frame.astype(np.float32)
-        p = self.setup.projector
-        x = projector.scale_to_panel(x, p.resolution, p.keep_aspect)
-        irr = projector.projector_irradiance(np.clip(x, 0.0, 1.0), p)
-        return self.lens.apply(irr)
+        return run(projector_chain.EMISSION, x, self.setup.projector, self.lens)
 
     def projector_radiance(self, irradiance: np.ndarray, seed: int = 0) -> np.ndarray:
         """Radiance due to the projector alone for a relative irradiance texture (linear).

@@ -1,17 +1,23 @@
-"""Stages of a device's chain: what each reads and does, flagged optical, linear or random.
+"""Stages of a device's chain: the keys each declares, what it does, flagged optical, linear or random.
 
-The projector (:data:`sim.projector.chain.STAGES`) and the camera
-(:data:`sim.camera.chain.STAGES`) each list their stages in the order light meets them. What
-depends on a kind of stage is derived from the flags instead of kept by hand:
-:func:`switch_off` of the optical stages gives the camera's sensor alone (what
-:mod:`sim.fidelity` measures the noise floor with), :func:`streams_version` of the random stages
-the version of a capture's random streams.
+A stage is declared by its own module: its options (a frozen dataclass of keys declared with
+:mod:`sim.options`, the keys of the device's setup section it reads), its function and its
+flags, as one :class:`Stage`. The projector (:data:`sim.projector.chain.CHAIN`) and the camera
+(:data:`sim.camera.chain.CHAIN`) each list their stages in the order light meets them, a
+:class:`Fused` group standing for consecutive stages applied by one function (fused for speed).
+The device's setup section is composed from the stages' options (:func:`sim.options.combine`,
+in :mod:`sim.setup.schema`), :func:`run` applies a chain, and what depends on a kind of stage is
+derived from the flags instead of kept by hand: :func:`switch_off` of the optical stages gives
+the camera's sensor alone (what :mod:`sim.fidelity` measures the noise floor with),
+:func:`streams_version` of the random stages the version of a capture's random streams.
 """
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
+
+from sim.options import option_fields
 
 
 @dataclass(frozen=True)
@@ -20,10 +26,14 @@ class Stage:
 
     name: str
     """Short name, unique in its chain."""
-    keys: tuple[str, ...]
-    """Keys of the device's setup section the stage reads."""
+    options: type
+    """Its keys: a frozen dataclass of options declared with :mod:`sim.options`, one field per key
+    of the device's setup section the stage reads (the field's docstring documents the key)."""
     what: str
-    """What it does, and where (the function that applies it)."""
+    """What it does."""
+    apply: Callable[..., Any] | None = None
+    """Its function on the chain's data, with the signature of its chain (see the chain's module);
+    None for a stage applied by its :class:`Fused` group or outside the chain (by Mitsuba)."""
     optical: bool = False
     """The lens or another optical element (not the sensor nor its processing)."""
     linear: bool = False
@@ -44,6 +54,52 @@ class Stage:
                              f"{sorted(set(self.off) - set(self.keys))}")
         if self.optical and not self.off:
             raise ValueError(f"stage {self.name!r}: an optical stage must be able to be switched off")
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """The keys it reads: the fields of :attr:`options`."""
+        return tuple(f.name for f in option_fields(self.options))
+
+    @property
+    def stages(self) -> tuple[Stage, ...]:
+        """The stage itself (as :attr:`Fused.stages`)."""
+        return (self,)
+
+    def is_off(self, cfg: Any) -> bool:
+        """True when ``cfg`` switches the stage off: each key of :attr:`off` at its off value (a
+        key ``cfg`` lacks counts as off)."""
+        return bool(self.off) and all(getattr(cfg, k, v) == v for k, v in self.off.items())
+
+
+@dataclass(frozen=True)
+class Fused:
+    """Consecutive stages of a chain applied by one function, fused for speed; each keeps its own
+    keys and flags."""
+
+    name: str
+    """Short name, unique in its chain."""
+    stages: tuple[Stage, ...]
+    """Its stages, in the order light meets them."""
+    apply: Callable[..., Any]
+    """The function that applies them all, with the signature of the chain."""
+
+    def is_off(self, cfg: Any) -> bool:
+        """True when ``cfg`` switches every one of its stages off."""
+        return all(s.is_off(cfg) for s in self.stages)
+
+
+def stages_of(chain: Iterable[Stage | Fused]) -> tuple[Stage, ...]:
+    """The stages of a chain in order, those of a :class:`Fused` group in its place."""
+    return tuple(s for item in chain for s in item.stages)
+
+
+def run(chain: Iterable[Stage | Fused], x: Any, cfg: Any, *args: Any) -> Any:
+    """``x`` through each item of ``chain`` in order, ``item.apply(x, cfg, *args)``, skipping (at
+    no cost) the items ``cfg`` switches off and the stages applied outside the chain."""
+    for item in chain:
+        if item.apply is not None and not item.is_off(cfg):
+            x = item.apply(x, cfg, *args)
+    return x
 
 
 def switch_off(cfg: Any, stages: Iterable[Stage]) -> Any:
@@ -70,10 +126,12 @@ def streams_version(stages: Iterable[Stage]) -> int:
 
     Examples
     --------
-    >>> streams_version([Stage("a", (), "", random=True, streams=lambda: 3), Stage("b", (), "")])
+    >>> from dataclasses import make_dataclass
+    >>> none = make_dataclass("NoKeys", [])
+    >>> streams_version([Stage("a", none, "", random=True, streams=lambda: 3), Stage("b", none, "")])
     3
-    >>> streams_version([Stage("a", (), "", random=True, streams=lambda: 3),
-    ...                  Stage("c", (), "", random=True, streams=lambda: 1)])
+    >>> streams_version([Stage("a", none, "", random=True, streams=lambda: 3),
+    ...                  Stage("c", none, "", random=True, streams=lambda: 1)])
     3001
     """
     version = 0

@@ -3,34 +3,49 @@ true of the stage's code, and what the flags give (the sensor alone, the streams
 from __future__ import annotations
 
 import dataclasses
+import shutil
+import subprocess
+import sys
+import textwrap
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 from helpers import tiny_setup
 
+import sim
 from sim import camera, projector, seeds
 from sim.camera import chain as camera_chain
 from sim.camera.noise import stream_version
 from sim.projector import chain as projector_chain
+from sim.options import number
 from sim.setup import CameraConfig, ProjectorConfig
+from sim.setup.schema import CameraView, ProjectorView
 from sim.stages import Stage, streams_version, switch_off
 
-CHAINS = {"camera": (camera_chain, CameraConfig), "projector": (projector_chain, ProjectorConfig)}
+CHAINS = {"camera": (camera_chain, CameraConfig, CameraView),
+          "projector": (projector_chain, ProjectorConfig, ProjectorView)}
+
+
+@dataclasses.dataclass(frozen=True)
+class KeyA:
+    a: float = number(0.0)
 
 
 @pytest.mark.parametrize("device", CHAINS)
-def test_every_key_is_rendered_or_read_by_exactly_one_stage(device):
-    chain, cls = CHAINS[device]
-    owners = [*chain.RENDERED, *(k for s in chain.STAGES for k in s.keys)]
-    assert sorted(owners) == sorted(f.name for f in dataclasses.fields(cls)), "each key once"
+def test_the_section_is_the_keys_of_no_stage_then_each_stage_s_keys(device):
+    chain, cls, view = CHAINS[device]
+    owners = [*(f.name for f in dataclasses.fields(view)), *(k for s in chain.STAGES for k in s.keys)]
+    assert owners == [f.name for f in dataclasses.fields(cls)]
     assert len({s.name for s in chain.STAGES}) == len(chain.STAGES)
+    assert len({item.name for item in chain.CHAIN}) == len(chain.CHAIN)
 
 
 @pytest.mark.parametrize("device", CHAINS)
 def test_switching_a_stage_off_gives_valid_values(device):
     """The values that switch a stage off are valid keys (schema defaults, mostly)."""
-    chain, cls = CHAINS[device]
+    chain, cls, _ = CHAINS[device]
     base = cls()
     for stage in chain.STAGES:
         if stage.off:
@@ -40,18 +55,94 @@ def test_switching_a_stage_off_gives_valid_values(device):
 
 def test_stage_rules():
     with pytest.raises(ValueError, match="no streams version"):
-        Stage("x", (), "", streams=lambda: 1)
+        Stage("x", KeyA, "", streams=lambda: 1)
     with pytest.raises(ValueError, match="must be able to be switched off"):
-        Stage("x", ("a",), "", optical=True)
+        Stage("x", KeyA, "", optical=True)
     with pytest.raises(ValueError, match="keys it does not read"):
-        Stage("x", ("a",), "", off={"b": 0})
+        Stage("x", KeyA, "", off={"b": 0})
     with pytest.raises(ValueError, match="random, without a streams version"):
-        streams_version([Stage("x", (), "", random=True)])
+        streams_version([Stage("x", KeyA, "", random=True)])
     with pytest.raises(ValueError, match="cannot be switched off"):
-        switch_off(CameraConfig(), [Stage("x", ("exposure",), "")])
+        switch_off(CameraConfig(), [s for s in camera_chain.STAGES if s.name == "exposure"])
 
 
 # ---------------------------------------------------------------------------------- camera
+
+GAIN_STAGE = '''\
+"""A toy camera effect: a gain on the radiance."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sim.options import POSITIVE, number
+from sim.stages import Stage
+
+
+@dataclass(frozen=True)
+class GainOptions:
+    """The key of the gain."""
+
+    gain: float = number(1.0, POSITIVE)
+    """Multiplier of the radiance (> 0)."""
+
+
+def _gain(radiance, cfg, rng):
+    return radiance * cfg.gain
+
+
+GAIN = Stage("gain", GainOptions, "a gain on the radiance", _gain, linear=True, off={"gain": 1.0})
+'''
+
+GAIN_CHECK = """\
+import tomllib
+from dataclasses import replace
+
+import numpy as np
+
+import sim
+from sim import camera
+from sim.setup import SetupError, dump_setup, parse_setup
+
+assert sim.__file__.startswith(ROOT), sim.__file__
+setup = parse_setup({"name": "t", "camera": {"gain": 2, "resolution": [24, 16]}})
+assert setup.camera.gain == 2.0
+text = dump_setup(setup)
+assert "gain = 2.0" in text and parse_setup(tomllib.loads(text)) == setup
+try:
+    parse_setup({"name": "t", "camera": {"gain": -1}}, "t.toml")
+except SetupError as exc:
+    assert str(exc) == "t.toml: camera.gain = -1: expected a number > 0", exc
+else:
+    raise AssertionError("gain = -1 accepted")
+assert [s.name for s in camera.STAGES if s.linear][3] == "gain"
+rad = np.random.default_rng(0).uniform(0, 0.4, (16, 24, 3)).astype(np.float32)
+doubled = camera.capture(rad, setup.camera, np.random.default_rng(1))
+plain = camera.capture(2 * rad, replace(setup.camera, gain=1.0), np.random.default_rng(1))
+assert np.array_equal(doubled, plain)
+assert not np.array_equal(doubled, camera.capture(rad, replace(setup.camera, gain=1.0), np.random.default_rng(1)))
+print("ok")
+"""
+
+
+def test_a_new_camera_stage_is_one_module_and_one_line_in_the_chain(tmp_path):
+    """A copy of ``sim`` with a toy stage module (a gain with its own key) and one entry in the
+    camera's chain: the key is validated, dumped and applied, with no other edit."""
+    shutil.copytree(Path(sim.__file__).parent, tmp_path / "sim", ignore=shutil.ignore_patterns("__pycache__"))
+    (tmp_path / "sim" / "camera" / "gain.py").write_text(GAIN_STAGE)
+    chain_file = tmp_path / "sim" / "camera" / "chain.py"
+    text = chain_file.read_text()
+    for old, new in (("from sim.camera import optics, raw, sensor\n",
+                      "from sim.camera import gain, optics, raw, sensor\n"),
+                     ("    optics.VIGNETTING,\n", "    optics.VIGNETTING,\n    gain.GAIN,\n")):
+        assert text.count(old) == 1
+        text = text.replace(old, new)
+    chain_file.write_text(text)
+    check = f"ROOT = {str(tmp_path)!r}\n" + GAIN_CHECK
+    done = subprocess.run([sys.executable, "-c", check], cwd=tmp_path, capture_output=True, text=True,
+                          env={"PYTHONPATH": str(tmp_path), "OMP_WAIT_POLICY": "PASSIVE",
+                               "PATH": "/usr/bin:/bin"}, timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-3000:]
+
 
 HARDWARE = replace(CameraConfig(), resolution=(48, 32), psf_sigma=0.7, distortion=-0.05,
                    vignetting=0.3, bayer="RGGB", jpeg_quality=90, white_balance=(1.1, 1.0, 0.9),

@@ -12,15 +12,20 @@ differ:
   block k from the k-th child of the capture's generator (``Generator.spawn``), NumPy's Poisson
   draws then float32 standard normals scaled by the read noise, the blocks on the camera's threads.
 
-Either way a capture is the same bit for bit on any number of cores.
+Either way a capture is the same bit for bit on any number of cores. The module declares the
+exposure and noise stages (:data:`EXPOSURE`, :data:`NOISE`), applied by the sensor
+(:mod:`sim.camera.sensor`).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
 
 from sim.camera.threads import BLOCK, blockwise, run
+from sim.options import NON_NEGATIVE, POSITIVE, choice, number
+from sim.stages import Stage
 
 
 def stream_version() -> int:
@@ -169,3 +174,35 @@ def noise_sigma(signal, shot_noise: float, read_noise: float) -> np.ndarray:
     """
     s = np.maximum(np.asarray(signal, np.float64), 0.0)
     return np.sqrt(shot_noise * s + read_noise ** 2)
+
+
+@dataclass(frozen=True)
+class ExposureOptions:
+    """The keys of the camera's exposure."""
+
+    exposure: float = number(1.0, POSITIVE)
+    """Multiplier (> 0) from linear scene radiance to sensor signal; signal 1 is the full well."""
+    exposure_mode: str = choice("manual", ("manual", "rule"))
+    """``"manual"``: ``exposure`` is used as given; ``"rule"``: set from captures of plain white
+    and plain black as the official README tells (plain white slightly over-exposed:
+    :data:`sim.camera.WHITE_CLIPPED_FRACTION` of the pixels at code 255), recorded in the
+    dataset's ``meta.json``."""
+
+
+@dataclass(frozen=True)
+class NoiseOptions:
+    """The keys of the sensor noise."""
+
+    shot_noise: float = number(2e-4, NON_NEGATIVE)
+    """Poisson gain a (>= 0): a signal s in [0, 1] has variance a * s (s / a electrons)."""
+    read_noise: float = number(2e-3, NON_NEGATIVE, "(linear signal units)")
+    """Gaussian read-noise sigma (>= 0), in linear signal units."""
+
+
+EXPOSURE = Stage("exposure", ExposureOptions, 'radiance to sensor signal (exposure_mode = "rule": '
+                 "the exposure set by sim.camera.rule_exposure)", linear=True)
+"""The camera's exposure stage."""
+NOISE = Stage("noise", NoiseOptions, "Poisson-Gaussian noise (on the mosaic's sites with a Bayer "
+              "sensor), then the full-well clip to [0, 1] (expose)", random=True,
+              streams=stream_version, off={"shot_noise": 0.0, "read_noise": 0.0})
+"""The camera's noise stage."""

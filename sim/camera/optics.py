@@ -1,5 +1,6 @@
-"""The camera's optics on linear radiance: a Gaussian PSF (lens and anti-alias filter), radial
-lens distortion and vignetting.
+"""The camera's optical stages on linear radiance: a Gaussian PSF (lens and anti-alias filter),
+radial lens distortion and vignetting (:data:`PSF`, :data:`DISTORTION`, :data:`VIGNETTING`, each
+with its options).
 
 Geometry: pixel ``(i, j)`` (column, row) has its centre at ``(i + 0.5, j + 0.5)``; the optical
 centre is the image centre ``c = (W / 2, H / 2)`` and radii are normalised by the half-diagonal
@@ -17,9 +18,13 @@ centre is the image centre ``c = (W / 2, H / 2)`` and radii are normalised by th
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from sim.options import Range, number
+from sim.stages import Stage
 
 
 def _centre_and_radius(width: int, height: int) -> tuple[np.ndarray, float]:
@@ -159,25 +164,53 @@ def blur(radiance: np.ndarray, sigma: float) -> np.ndarray:
                             borderType=cv2.BORDER_REFLECT)
 
 
-def apply_optics(radiance: np.ndarray, cfg) -> np.ndarray:
-    """PSF, then distortion, then vignetting, each only when its key is non-zero (the input
-    itself is returned when all are off).
+@dataclass(frozen=True)
+class PsfOptions:
+    """The key of the camera's PSF."""
 
-    Parameters
-    ----------
-    radiance : numpy.ndarray
-        float32 (H, W, 3) linear radiance.
-    cfg : CameraConfig-like
-        ``psf_sigma``, ``distortion``, ``vignetting`` (absent = 0).
-    """
-    out = radiance
-    sigma = float(getattr(cfg, "psf_sigma", 0.0))
-    k1 = float(getattr(cfg, "distortion", 0.0))
-    vig = float(getattr(cfg, "vignetting", 0.0))
-    if sigma > 0:
-        out = blur(out, sigma)
-    if k1 != 0:
-        out = distort_image(out, k1)
-    if vig > 0:
-        out = out * vignetting_profile(out.shape[1], out.shape[0], vig)
-    return out
+    psf_sigma: float = number(0.0, Range(0, 16), "camera pixels")
+    """Camera pixels (>= 0, at most 16): standard deviation of the Gaussian optical PSF /
+    anti-alias filter applied to the linear radiance; 0 is off."""
+
+
+@dataclass(frozen=True)
+class DistortionOptions:
+    """The key of the camera's lens distortion."""
+
+    distortion: float = number(0.0, Range(-0.14, 1), "(radial k1, normalised by the half-diagonal)")
+    """Radial lens distortion k1 (Brown model, radius normalised by the half-diagonal), in
+    [-0.14, 1]: a point at radius rho is seen at ``rho (1 + k1 rho**2)``; negative is barrel,
+    0 is off."""
+
+
+@dataclass(frozen=True)
+class VignettingOptions:
+    """The key of the camera's vignetting."""
+
+    vignetting: float = number(0.0, Range(0, 1, hi_open=True), "(fraction lost at the corners)")
+    """Fraction in [0, 1) of the light lost at the frame corners (cos^4-like falloff
+    ``(1 + c rho**2)**-2`` of the normalised radius rho, see the module); 0 is off."""
+
+
+def _psf(radiance: np.ndarray, cfg, rng) -> np.ndarray:
+    return blur(radiance, float(cfg.psf_sigma))
+
+
+def _distortion(radiance: np.ndarray, cfg, rng) -> np.ndarray:
+    return distort_image(radiance, float(cfg.distortion))
+
+
+def _vignetting(radiance: np.ndarray, cfg, rng) -> np.ndarray:
+    return radiance * vignetting_profile(radiance.shape[1], radiance.shape[0], float(cfg.vignetting))
+
+
+PSF = Stage("psf", PsfOptions, "Gaussian optical PSF / anti-alias filter of psf_sigma camera pixels "
+            "(blur)", _psf, optical=True, linear=True, off={"psf_sigma": 0.0})
+"""The camera's PSF stage."""
+DISTORTION = Stage("distortion", DistortionOptions, "radial lens distortion, Brown's k1 "
+                   "(distort_image)", _distortion, optical=True, linear=True, off={"distortion": 0.0})
+"""The camera's lens distortion stage."""
+VIGNETTING = Stage("vignetting", VignettingOptions, "cos^4-like falloff towards the corners "
+                   "(vignetting_profile)", _vignetting, optical=True, linear=True,
+                   off={"vignetting": 0.0})
+"""The camera's vignetting stage."""

@@ -1,74 +1,40 @@
-"""The whole camera on linear radiance (:func:`capture`) and the exposure rule
-(:func:`rule_exposure`)."""
+"""The whole camera on linear radiance (:func:`capture`: the chain of :mod:`sim.camera.chain`),
+its optics alone (:func:`apply_optics`) and the exposure rule (:func:`rule_exposure`)."""
 from __future__ import annotations
-
-import functools
 
 import numpy as np
 
+from sim.camera import chain
 from sim.camera.noise import expose
-from sim.camera.optics import apply_optics
-from sim.camera.raw import (demosaic, dequantise_raw, jpeg, mosaic, quantise_raw,
-                            white_balance_mosaic)
 from sim.camera.response import code_thresholds, codes
-from sim.camera.threads import blockwise
+from sim.stages import run
 
 WHITE_CLIPPED_FRACTION = 0.02
 """The exposure rule's "slightly over-exposed": the fraction of camera pixels whose noiseless
 capture of plain white reaches code 255 in some channel."""
 
 
-def _key(cfg, name: str, default):
-    """A hardware key of ``cfg``; objects without it (older configs, tests) have the effect off."""
-    return getattr(cfg, name, default)
+def _optical(items: tuple) -> tuple:
+    """The items of a camera chain made of optical stages only (those before the sensor)."""
+    return tuple(item for item in items if all(s.optical for s in item.stages))
 
 
-@functools.lru_cache(maxsize=16)
-def raw_code_table(response: str) -> np.ndarray:
-    """The 8-bit code of each 16-bit raw code: ``codes(dequantise_raw(k), response)`` for k in
-    0..65535 (read-only), so a demosaiced image is encoded by one table lookup per value.
-
-    Examples
-    --------
-    >>> table = raw_code_table("gamma:2")
-    >>> table.shape, int(table[0]), int(table[16384]), int(table[65535])
-    ((65536,), 0, 128, 255)
-    """
-    table = codes(dequantise_raw(np.arange(65536, dtype=np.uint16)), response)
-    table.flags.writeable = False
-    return table
-
-
-def raw_signal(radiance: np.ndarray, cfg, rng: np.random.Generator | None) -> np.ndarray:
-    """The white-balanced mosaic of a Bayer camera, before demosaicing.
-
-    The mosaic of ``radiance * exposure`` (one channel per pixel), Poisson-Gaussian noise on each
-    site, the full-well clip to [0, 1], then the white-balance gain of each site's channel and a
-    clip to [0, 1] again (the digital saturation). Its variance before the clips is
-    ``g_c**2 (shot_noise * s + read_noise**2)`` for a site of channel c, gain g_c and signal s.
+def apply_optics(radiance: np.ndarray, cfg) -> np.ndarray:
+    """The optical stages of :data:`sim.camera.chain.CHAIN` (PSF, distortion, vignetting), each
+    only when its keys do not switch it off (the input itself is returned when all are off).
 
     Parameters
     ----------
     radiance : numpy.ndarray
-        float32 (H, W, 3) linear radiance at the sensor (after the optics).
+        float32 (H, W, 3) linear radiance.
     cfg : CameraConfig-like
-        ``bayer`` (a pattern), ``exposure``, ``white_balance``, ``shot_noise``, ``read_noise``.
-    rng : numpy.random.Generator or None
-        Source of the noise; needed unless both noise terms are 0.
-
-    Returns
-    -------
-    numpy.ndarray
-        float32 (H, W) mosaic in [0, 1].
+        The optical stages' keys (absent: off).
     """
-    s = expose(mosaic(np.asarray(radiance, np.float32), cfg.bayer), cfg.exposure, None,
-               cfg.shot_noise, cfg.read_noise, rng)
-    s = white_balance_mosaic(s, cfg.bayer, cfg.white_balance)
-    return np.clip(s, 0.0, 1.0, out=s)
+    return run(_optical(chain.CHAIN), radiance, cfg, None)
 
 
 def capture(radiance: np.ndarray, cfg, rng: np.random.Generator) -> np.ndarray:
-    """The whole camera: the stages of :data:`sim.camera.chain.STAGES` in order, to an 8-bit image.
+    """The whole camera: the stages of :data:`sim.camera.chain.CHAIN` in order, to an 8-bit image.
 
     Parameters
     ----------
@@ -76,8 +42,8 @@ def capture(radiance: np.ndarray, cfg, rng: np.random.Generator) -> np.ndarray:
         Linear camera radiance (H, W, 3).
     cfg : CameraConfig-like
         Any object with ``exposure``, ``white_balance``, ``shot_noise``, ``read_noise``,
-        ``response`` and ``bit_depth`` attributes; the hardware keys ``psf_sigma``,
-        ``distortion``, ``vignetting``, ``bayer``, ``demosaic`` and ``jpeg_quality`` are off
+        ``response`` and ``bit_depth`` attributes; the keys of the stages that can be switched
+        off (``psf_sigma``, ``distortion``, ``vignetting``, ``bayer``, ``jpeg_quality`` …) are off
         when absent.
     rng : numpy.random.Generator
         Source of the sensor noise (seeded by the caller).
@@ -87,28 +53,10 @@ def capture(radiance: np.ndarray, cfg, rng: np.random.Generator) -> np.ndarray:
     numpy.ndarray
         uint8 (H, W, 3) image.
     """
-    if cfg.bit_depth != 8:
-        raise ValueError(f"camera bit_depth = {cfg.bit_depth!r}: only 8 is supported")
     rad = np.asarray(radiance, np.float32)
     if rad.ndim != 3 or rad.shape[-1] != 3:
         raise ValueError(f"radiance: expected shape (H, W, 3), got {rad.shape}")
-    rad = apply_optics(rad, cfg)
-    pattern = _key(cfg, "bayer", "none")
-    if pattern == "none":
-        wb = np.asarray(cfg.white_balance, np.float32)
-        if wb.shape != (3,):
-            raise ValueError(f"white_balance: expected 3 gains, got {cfg.white_balance!r}")
-        out = expose(rad, cfg.exposure, wb, cfg.shot_noise, cfg.read_noise, rng,
-                     lambda s: codes(s, cfg.response), np.uint8)
-    else:
-        raw = raw_signal(rad, cfg, rng)
-        method = _key(cfg, "demosaic", "bilinear")
-        if method == "vng":  # OpenCV's VNG is 8-bit only: demosaic the encoded mosaic
-            out = demosaic(blockwise(lambda b: codes(b, cfg.response), raw, np.uint8), pattern, method)
-        else:
-            out = np.take(raw_code_table(cfg.response), demosaic(quantise_raw(raw), pattern, method))
-    quality = _key(cfg, "jpeg_quality", 0)
-    return jpeg(out, quality) if quality else out
+    return run(chain.CHAIN, rad, cfg, rng)
 
 
 def rule_exposure(white: np.ndarray, black: np.ndarray, cfg) -> dict:

@@ -4,14 +4,21 @@ optional JPEG compression of the 8-bit image.
 A Bayer pattern is named by its top-left 2x2 block read row by row (``"RGGB"``: red at pixel
 (0, 0), green at (1, 0) and (0, 1), blue at (1, 1)). Demosaicing runs on the white-balanced
 mosaic quantised to 16 bits (``bilinear``, ``edgeaware``); OpenCV's ``vng`` takes 8-bit data
-only, so for it the mosaic is encoded by the response curve and quantised to 8 bits first.
+only, so for it the mosaic is encoded by the response curve and quantised to 8 bits first. The
+module declares the mosaic, white-balance, demosaicing and JPEG stages (:data:`MOSAIC`,
+:data:`WHITE_BALANCE`, :data:`DEMOSAIC`, :data:`JPEG`); the first three are applied by the
+sensor (:mod:`sim.camera.sensor`).
 """
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from sim.options import POSITIVE, Range, choice, integer, vector
+from sim.stages import Stage
 
 BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 """Valid ``camera.bayer`` patterns (besides ``"none"``)."""
@@ -146,3 +153,58 @@ def jpeg(image: np.ndarray, quality: int) -> np.ndarray:
     if not ok:
         raise RuntimeError(f"OpenCV could not JPEG-encode an image of shape {image.shape}")
     return cv2.imdecode(data, cv2.IMREAD_COLOR)[..., ::-1].copy()
+
+
+@dataclass(frozen=True)
+class MosaicOptions:
+    """The key of the colour filter array."""
+
+    bayer: str = choice("none", ("none", *BAYER_PATTERNS))
+    """Colour filter array: ``"none"`` (three samples per pixel) or a Bayer pattern ``"RGGB"``,
+    ``"BGGR"``, ``"GRBG"``, ``"GBRG"`` (top-left 2x2 block, row by row): one channel per pixel,
+    noise drawn on the raw mosaic, white balance applied after the noise, then demosaicing."""
+
+
+@dataclass(frozen=True)
+class WhiteBalanceOptions:
+    """The key of the white balance."""
+
+    white_balance: tuple[float, float, float] = vector((1.0, 1.0, 1.0), POSITIVE)
+    """Per-channel linear gains, each > 0."""
+
+
+@dataclass(frozen=True)
+class DemosaicOptions:
+    """The key of the demosaicing."""
+
+    demosaic: str = choice("bilinear", DEMOSAIC_METHODS)
+    """OpenCV demosaicing of a Bayer mosaic: ``"bilinear"``, ``"vng"`` or ``"edgeaware"``
+    (used only when ``bayer`` is not ``"none"``)."""
+
+
+@dataclass(frozen=True)
+class JpegOptions:
+    """The key of the JPEG compression."""
+
+    jpeg_quality: int = integer(0, Range(0, 100), "(0: no JPEG)")
+    """JPEG quality 1..100 of the captures (OpenCV), or 0: no compression (lossless PNG)."""
+
+
+def _jpeg(image: np.ndarray, cfg, rng) -> np.ndarray:
+    return jpeg(image, cfg.jpeg_quality)
+
+
+MOSAIC = Stage("mosaic", MosaicOptions, "with a Bayer pattern, one colour channel per pixel (mosaic)",
+               linear=True, off={"bayer": "none"})
+"""The camera's colour filter array stage."""
+WHITE_BALANCE = Stage("white_balance", WhiteBalanceOptions, "per-channel gains: with a Bayer sensor "
+                      "the digital gain of each site after the noise and the clip (clipped to [0, 1] "
+                      "again), without one ahead of the noise", linear=True,
+                      off={"white_balance": (1.0, 1.0, 1.0)})
+"""The camera's white-balance stage."""
+DEMOSAIC = Stage("demosaic", DemosaicOptions, "OpenCV demosaicing of the mosaic quantised to 16 bits "
+                 "(vng: of the mosaic encoded to 8 bits, OpenCV's VNG being 8-bit only; demosaic)")
+"""The camera's demosaicing stage."""
+JPEG = Stage("jpeg", JpegOptions, "JPEG compression and decompression (jpeg)", _jpeg,
+             off={"jpeg_quality": 0})
+"""The camera's JPEG stage."""

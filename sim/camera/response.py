@@ -24,16 +24,23 @@ Response curves map the linear sensor signal in [0, 1] (1 = full well) to the en
 - Parametric curves of ours: ``"linear"``, ``"gamma:<g>"`` (encode ``x**(1/g)``) and
   ``"scurve:<k>"``, the film-like ``x**k / (x**k + (1 - x)**k)`` (S-shaped for k > 1, exact
   inverse: the same curve with ``1/k``), for g, k in (0.1, 10).
+
+The module declares the response stage (:data:`RESPONSE`), applied by the sensor
+(:mod:`sim.camera.sensor`).
 """
 from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Callable
 
 import colour
 import numpy as np
+
+from sim.options import integer, string
+from sim.stages import Stage
 
 _COLOUR_CURVES = (
     "sRGB", "ITU-T H.273 IEC 61966-2", "Gamma 2.2", "Gamma 2.4", "Gamma 2.6", "ITU-R BT.601",
@@ -323,3 +330,24 @@ def codes(signal: np.ndarray, response: str) -> np.ndarray:
         many = crowded[cell]
         out[many] = np.searchsorted(code_thresholds(response), bits[many].astype(np.uint32), side="right")
     return out
+
+
+def _eight_bits(value: int) -> None:
+    """Raise ValueError unless ``value`` is 8."""
+    if value != 8:
+        raise ValueError("expected 8 (captures are 8-bit PNGs)")
+
+
+@dataclass(frozen=True)
+class ResponseOptions:
+    """The keys of the camera's response and quantisation."""
+
+    response: str = string("sRGB", check=check_response)
+    """Camera response curve, a name accepted by :func:`sim.camera.check_response`."""
+    bit_depth: int = integer(8, check=_eight_bits)
+    """Bits per channel of the captures; must be 8."""
+
+
+RESPONSE = Stage("response", ResponseOptions, "response curve and 8-bit quantisation, at once from "
+                 "the linear signal (codes)")
+"""The camera's response stage."""

@@ -1,6 +1,7 @@
 """The projector outside Mitsuba: its scaler, photometry (response, black level, primaries
 mixing), lens (Gaussian point-spread function and depth-dependent defocus) and lamp (flicker and
-drift), stage by stage in :data:`~sim.projector.chain.STAGES`.
+drift), stage by stage in :data:`~sim.projector.chain.CHAIN`; each stage's module declares its keys,
+which make up :class:`sim.setup.ProjectorConfig`.
 
 A frame goes through the scaler to the native panel (:mod:`~sim.projector.scaler`), the
 response and mixing (:mod:`~sim.projector.photometry`) and the lens (:mod:`~sim.projector.lens`,
@@ -16,7 +17,7 @@ scene applies it as the scale of Mitsuba's ``projector`` emitter, and the lamp's
 brightness (:func:`lamp_gain`, :mod:`~sim.projector.lamp`) multiplies a capture's projector
 contribution.
 """
-from sim.projector.chain import STAGES
+from sim.projector.chain import CHAIN, STAGES
 from sim.projector.defocus import (DEFOCUS_RELATIVE_STEP, DEFOCUS_STEP, SHARP_DIAMETER, defocus,
                                    defocus_blur_diameter_px, defocus_levels, defocus_plan,
                                    disk_kernel, disk_radius, varying_defocus)
@@ -26,7 +27,7 @@ from sim.projector.photometry import emitted_irradiance, projector_irradiance
 from sim.projector.scaler import frame_area, scale_to_panel
 
 __all__ = [
-    "DEFOCUS_RELATIVE_STEP", "DEFOCUS_STEP", "SHARP_DIAMETER", "STAGES", "Lens", "defocus",
+    "CHAIN", "DEFOCUS_RELATIVE_STEP", "DEFOCUS_STEP", "SHARP_DIAMETER", "STAGES", "Lens", "defocus",
     "defocus_blur_diameter_px", "defocus_levels", "defocus_plan", "disk_kernel", "disk_radius",
     "emitted_irradiance", "frame_area", "gaussian_radius", "lamp_gain", "lens_for",
     "projector_irradiance", "scale_to_panel", "throw_distance", "varying_defocus",

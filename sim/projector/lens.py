@@ -3,22 +3,25 @@ depth (:class:`Lens`), built for a setup by :func:`lens_for`.
 
 The lens's output is the panel padded by :attr:`Lens.pad` pixels of each side, so light it blurs
 past the panel's border is kept; Mitsuba's emitter (:mod:`sim.scene`) and the transport operator
-(:mod:`sim.transport`) use that padded grid (:meth:`Lens.fov`).
+(:mod:`sim.transport`) use that padded grid (:meth:`Lens.fov`). The module declares the lens's
+stages (:data:`PSF`, :data:`DEFOCUS`, fused as :data:`LENS`).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
 from functools import cached_property
+from typing import Any
 
 import cv2
 import numpy as np
 
 from sim import geometry, surfaces
 from sim.errors import ProcamError
+from sim.options import NON_NEGATIVE, POSITIVE, Range, number
 from sim.projector.defocus import (SHARP_DIAMETER, defocus_blur_diameter_px, defocus_plan,
                                    disk_radius, varying_defocus)
-from sim.setup import Setup
+from sim.stages import Fused, Stage
 
 
 def gaussian_radius(sigma: float) -> int:
@@ -106,8 +109,9 @@ class Lens:
         return defocus_plan(self.diameters)
 
 
-def throw_distance(setup: Setup) -> float:
-    """Distance (metres) from the projector to the surface along its optical axis."""
+def throw_distance(setup: Any) -> float:
+    """Distance (metres) from the projector to the surface along its optical axis in a setup
+    (:class:`sim.setup.Setup`)."""
     p = geometry.Pinhole.from_config(setup.projector, (1, 1))
     axis = p.frame()[:, 2]
     t, _ = surfaces.surface_for(setup.surface).intersect(p.position, axis[None])
@@ -116,7 +120,7 @@ def throw_distance(setup: Setup) -> float:
     return float(t[0])
 
 
-def lens_for(setup: Setup) -> Lens:
+def lens_for(setup: Any) -> Lens:
     """The projector's lens (:class:`sim.Lens`) in a setup.
 
     The defocus disk of each pixel follows the depth of the surface point its ray hits
@@ -126,7 +130,7 @@ def lens_for(setup: Setup) -> Lens:
 
     Parameters
     ----------
-    setup : Setup
+    setup : sim.setup.Setup
         The setup (``projector.psf_sigma``, ``aperture``, ``focus_distance``, pose; surface).
 
     Returns
@@ -163,3 +167,37 @@ def lens_for(setup: Setup) -> Lens:
     if float(diameters.max()) < SHARP_DIAMETER:  # in focus everywhere: a point each
         return Lens((w, h), pad, p.psf_sigma)
     return Lens((w, h), pad, p.psf_sigma, np.ascontiguousarray(diameters, np.float32))
+
+
+@dataclass(frozen=True)
+class PsfOptions:
+    """The key of the lens's point-spread function."""
+
+    psf_sigma: float = number(0.0, Range(0, 50), "projector pixels")
+    """Native projector pixels, in [0, 50]: standard deviation of the lens's Gaussian point-spread
+    function (0: sharp)."""
+
+
+@dataclass(frozen=True)
+class DefocusOptions:
+    """The keys of the lens's defocus."""
+
+    aperture: float = number(0.0, NON_NEGATIVE, "metres")
+    """Metres, lens aperture diameter for defocus (>= 0); 0 is a pinhole (sharp)."""
+    focus_distance: float = number(1.0, POSITIVE, "metres")
+    """Metres (> 0), depth (along the optical axis) at which the projector is in focus; each
+    surface point is blurred by the thin-lens disk of its own depth."""
+
+
+def _lens(irradiance: np.ndarray, cfg, lens: Lens) -> np.ndarray:
+    return lens.apply(irradiance)
+
+
+PSF = Stage("psf", PsfOptions, "the lens's Gaussian point-spread function (Lens)", optical=True,
+            linear=True, off={"psf_sigma": 0.0})
+"""The lens's point-spread function stage."""
+DEFOCUS = Stage("defocus", DefocusOptions, "the thin-lens defocus disk of each pixel's depth on the "
+                "surface (lens_for, Lens)", optical=True, linear=True, off={"aperture": 0.0})
+"""The lens's defocus stage."""
+LENS = Fused("lens", (PSF, DEFOCUS), _lens)
+"""The lens's stages at once (:meth:`Lens.apply` of the setup's lens, built by :func:`lens_for`)."""

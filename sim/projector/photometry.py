@@ -1,14 +1,20 @@
-"""The projector's photometry: response, black level and primaries mixing of an input frame.
+"""The projector's photometry: response, black level and primaries mixing of an input frame
+(the stages :data:`RESPONSE` and :data:`MIXING`, fused as :data:`PHOTOMETRY`), and its
+brightness (:data:`BRIGHTNESS`).
 
 Outputs are *relative linear* irradiance: the brightness is the scale of Mitsuba's emitter
 (:mod:`sim.scene`), so a white input with identity mixing gives 1.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
 from sim.io import to_float
+from sim.options import NON_NEGATIVE, POSITIVE, Range, matrix, number
+from sim.stages import Fused, Stage
 
 
 def emitted_irradiance(frame: np.ndarray, gamma: float, black_level: float,
@@ -88,3 +94,48 @@ def projector_irradiance(frame: np.ndarray, cfg) -> np.ndarray:
         float32 (H, W, 3) relative linear irradiance (brightness not applied).
     """
     return emitted_irradiance(frame, cfg.gamma, cfg.black_level, cfg.mixing)
+
+
+@dataclass(frozen=True)
+class ResponseOptions:
+    """The keys of the projector's response."""
+
+    gamma: float = number(2.2, Range(0.1, 10, lo_open=True, hi_open=True))
+    """Projector response exponent (encoded input -> linear output), in (0.1, 10)."""
+    black_level: float = number(0.005, Range(0, 0.2, hi_open=True))
+    """Fraction of full output emitted for input 0, in [0, 0.2)."""
+
+
+@dataclass(frozen=True)
+class MixingOptions:
+    """The key of the projector's primaries mixing."""
+
+    mixing: tuple[tuple[float, float, float], ...] = matrix(
+        ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), NON_NEGATIVE)
+    """3x3 primaries mixing matrix (rows: camera channel, columns: projector primary), entries >= 0."""
+
+
+@dataclass(frozen=True)
+class BrightnessOptions:
+    """The key of the projector's brightness."""
+
+    brightness: float = number(1.0, POSITIVE)
+    """Emitter scale (> 0): irradiance 1 at 1 m head-on gives an outgoing radiance equal to the albedo."""
+
+
+def _photometry(frame: np.ndarray, cfg, lens) -> np.ndarray:
+    return projector_irradiance(np.clip(frame, 0.0, 1.0), cfg)
+
+
+RESPONSE = Stage("response", ResponseOptions, "power-law response with a black-level floor "
+                 "(emitted_irradiance)")
+"""The projector's response stage."""
+MIXING = Stage("mixing", MixingOptions, "3x3 mixing of the primaries onto the camera channels "
+               "(emitted_irradiance)", linear=True,
+               off={"mixing": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))})
+"""The projector's primaries mixing stage."""
+PHOTOMETRY = Fused("photometry", (RESPONSE, MIXING), _photometry)
+"""Response and mixing at once (:func:`projector_irradiance` of the frame clipped to [0, 1])."""
+BRIGHTNESS = Stage("brightness", BrightnessOptions, "the scale of Mitsuba's projector emitter, in the "
+                   "light transport (sim.scene)", linear=True, off={"brightness": 1.0})
+"""The projector's brightness: applied by Mitsuba, in the light transport."""

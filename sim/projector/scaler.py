@@ -1,9 +1,14 @@
 """The projector's scaler: where an input frame lands on the native panel, and the frame
-resampled onto it."""
+resampled onto it (the stage :data:`SCALER`)."""
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from sim.options import boolean
+from sim.stages import Stage
 
 
 def frame_area(panel: tuple[int, int], frame: tuple[int, int],
@@ -81,3 +86,23 @@ def scale_to_panel(frame: np.ndarray, panel: tuple[int, int], keep_aspect: bool)
     out = np.zeros((ph, pw, 3), np.float32)
     out[y0:y0 + h, x0:x0 + w] = scaled
     return out
+
+
+@dataclass(frozen=True)
+class ScalerOptions:
+    """The key of the projector's scaler."""
+
+    keep_aspect: bool = boolean(True)
+    """True: the scaler resamples an input frame to cover the panel keeping the frame's aspect
+    ratio, centred, the rest of the panel at the black level (a 256x256 frame on an 800x600 panel
+    fills the central 600x600); False: stretched to fill the whole panel. A frame of the panel's
+    aspect fills the panel either way."""
+
+
+def _scale(frame: np.ndarray, cfg, lens) -> np.ndarray:
+    return scale_to_panel(frame, cfg.resolution, cfg.keep_aspect)
+
+
+SCALER = Stage("scaler", ScalerOptions, "the input frame resampled onto the native panel, on encoded "
+               "values (scale_to_panel)", _scale)
+"""The projector's scaler stage."""

@@ -1,9 +1,10 @@
 """The setup schema: frozen dataclasses describing one projector-camera setup, field by field.
 
 Every key is declared once, here (or, for a surface's own keys, in its module of
-:mod:`sim.surfaces`): its default, kind, range and unit in the field's declaration
-(:mod:`sim.options`), its meaning in the field's docstring. :mod:`sim.setup.validation` checks a
-setup file against these declarations alone.
+:mod:`sim.surfaces`; for the keys of a camera's or projector's stage, in the stage's module, from
+which :class:`CameraConfig` and :class:`ProjectorConfig` are composed): its default, kind, range
+and unit in the field's declaration (:mod:`sim.options`), its meaning in the field's docstring.
+:mod:`sim.setup.validation` checks a setup file against these declarations alone.
 
 World: metres and degrees; the (planar) surface lies in the x-y plane at z = 0, centred at the
 origin, normal +z, up +y; projector and camera stand at z > 0 looking towards -z. The defaults
@@ -15,8 +16,10 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 from sim import surfaces
-from sim.options import (NON_NEGATIVE, POSITIVE, UNIT, Range, boolean, choice, integer, matrix,
-                         number, string, variant, vector)
+from sim.camera import chain as camera_chain
+from sim.options import (NON_NEGATIVE, POSITIVE, UNIT, Range, choice, combine, integer, number,
+                         string, variant, vector)
+from sim.projector import chain as projector_chain
 
 NAME_PATTERN = "[A-Za-z0-9_-]+"
 """Setup names (used as dataset folder names)."""
@@ -63,8 +66,9 @@ class SurfaceConfig:
 
 
 @dataclass(frozen=True)
-class ProjectorConfig:
-    """The projector: response, primaries mixing, pose and optics."""
+class ProjectorView:
+    """The projector keys of no stage: Mitsuba's emitter renders with them (panel pixels, field of
+    view, pose)."""
 
     resolution: tuple[int, int] = vector((256, 256), Range(8, 4096), "pixels", integer=True)
     """Pixels (width, height), each 8..4096."""
@@ -76,66 +80,19 @@ class ProjectorConfig:
     """Metres, a world point on the optical axis (towards -z)."""
     up: tuple[float, float, float] = vector((0.0, 1.0, 0.0))
     """Direction of the image's up (not parallel to the optical axis)."""
-    brightness: float = number(1.0, POSITIVE)
-    """Emitter scale (> 0): irradiance 1 at 1 m head-on gives an outgoing radiance equal to the albedo."""
-    gamma: float = number(2.2, Range(0.1, 10, lo_open=True, hi_open=True))
-    """Projector response exponent (encoded input -> linear output), in (0.1, 10)."""
-    black_level: float = number(0.005, Range(0, 0.2, hi_open=True))
-    """Fraction of full output emitted for input 0, in [0, 0.2)."""
-    mixing: tuple[tuple[float, float, float], ...] = matrix(
-        ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), NON_NEGATIVE)
-    """3x3 primaries mixing matrix (rows: camera channel, columns: projector primary), entries >= 0."""
-    aperture: float = number(0.0, NON_NEGATIVE, "metres")
-    """Metres, lens aperture diameter for defocus (>= 0); 0 is a pinhole (sharp)."""
-    focus_distance: float = number(1.0, POSITIVE, "metres")
-    """Metres (> 0), depth (along the optical axis) at which the projector is in focus; each
-    surface point is blurred by the thin-lens disk of its own depth."""
-    keep_aspect: bool = boolean(True)
-    """True: the scaler resamples an input frame to cover the panel keeping the frame's aspect
-    ratio, centred, the rest of the panel at the black level (a 256x256 frame on an 800x600 panel
-    fills the central 600x600); False: stretched to fill the whole panel. A frame of the panel's
-    aspect fills the panel either way."""
-    psf_sigma: float = number(0.0, Range(0, 50), "projector pixels")
-    """Native projector pixels, in [0, 50]: standard deviation of the lens's Gaussian point-spread
-    function (0: sharp)."""
-    flicker: float = number(0.0, Range(0, 0.5), "(relative brightness std)")
-    """Relative standard deviation of the lamp brightness from one capture to the next, in
-    [0, 0.5] (0: steady)."""
-    drift: float = number(0.0, Range(-1, 1, lo_open=True, hi_open=True), "(relative brightness change)")
-    """Relative change of the lamp brightness between calibration captures (reference, training,
-    registration) and test-time captures (test and closed loop), in (-1, 1) (0: none)."""
 
 
-def _response(value: str) -> None:
-    """Raise ValueError unless ``value`` names a camera response curve."""
-    from sim.camera.response import check_response
-
-    check_response(value)
-
-
-def _eight_bits(value: int) -> None:
-    """Raise ValueError unless ``value`` is 8."""
-    if value != 8:
-        raise ValueError("expected 8 (captures are 8-bit PNGs)")
-
-
-def _bayer_choices() -> tuple[str, ...]:
-    """``camera.bayer``'s values: none, or a pattern of :data:`sim.camera.BAYER_PATTERNS`."""
-    from sim.camera.raw import BAYER_PATTERNS
-
-    return ("none", *BAYER_PATTERNS)
-
-
-def _demosaic_methods() -> tuple[str, ...]:
-    """``camera.demosaic``'s values (:data:`sim.camera.DEMOSAIC_METHODS`)."""
-    from sim.camera.raw import DEMOSAIC_METHODS
-
-    return DEMOSAIC_METHODS
+ProjectorConfig = combine(
+    "ProjectorConfig", (ProjectorView, *(stage.options for stage in projector_chain.STAGES)),
+    """The projector: the keys of :class:`ProjectorView` (pose, field of view, panel), then those
+    of each stage of :data:`sim.projector.chain.CHAIN` in order (scaler, response, mixing, lens,
+    brightness, lamp), each declared and documented by its stage's options.""", __name__)
 
 
 @dataclass(frozen=True)
-class CameraConfig:
-    """The camera: pose, optics and sensor (exposure, noise, response, bit depth)."""
+class CameraView:
+    """The camera keys of no stage: Mitsuba's sensor renders with them (pixels, field of view,
+    pose, thin lens), shaping the linear radiance the camera's stages receive."""
 
     resolution: tuple[int, int] = vector((256, 256), Range(8, 4096), "pixels", integer=True)
     """Pixels (width, height), each 8..4096."""
@@ -151,42 +108,13 @@ class CameraConfig:
     """Metres, thin-lens aperture radius (>= 0); 0 is a pinhole."""
     focus_distance: float = number(1.03, POSITIVE, "metres")
     """Metres (> 0), in-focus distance (used when ``aperture_radius > 0``)."""
-    exposure: float = number(1.0, POSITIVE)
-    """Multiplier (> 0) from linear scene radiance to sensor signal; signal 1 is the full well."""
-    white_balance: tuple[float, float, float] = vector((1.0, 1.0, 1.0), POSITIVE)
-    """Per-channel linear gains, each > 0."""
-    response: str = string("sRGB", check=_response)
-    """Camera response curve, a name accepted by :func:`sim.camera.check_response`."""
-    shot_noise: float = number(2e-4, NON_NEGATIVE)
-    """Poisson gain a (>= 0): a signal s in [0, 1] has variance a * s (s / a electrons)."""
-    read_noise: float = number(2e-3, NON_NEGATIVE, "(linear signal units)")
-    """Gaussian read-noise sigma (>= 0), in linear signal units."""
-    bit_depth: int = integer(8, check=_eight_bits)
-    """Bits per channel of the captures; must be 8."""
-    psf_sigma: float = number(0.0, Range(0, 16), "camera pixels")
-    """Camera pixels (>= 0, at most 16): standard deviation of the Gaussian optical PSF /
-    anti-alias filter applied to the linear radiance; 0 is off."""
-    bayer: str = choice("none", _bayer_choices)
-    """Colour filter array: ``"none"`` (three samples per pixel) or a Bayer pattern ``"RGGB"``,
-    ``"BGGR"``, ``"GRBG"``, ``"GBRG"`` (top-left 2x2 block, row by row): one channel per pixel,
-    noise drawn on the raw mosaic, white balance applied after the noise, then demosaicing."""
-    demosaic: str = choice("bilinear", _demosaic_methods)
-    """OpenCV demosaicing of a Bayer mosaic: ``"bilinear"``, ``"vng"`` or ``"edgeaware"``
-    (used only when ``bayer`` is not ``"none"``)."""
-    vignetting: float = number(0.0, Range(0, 1, hi_open=True), "(fraction lost at the corners)")
-    """Fraction in [0, 1) of the light lost at the frame corners (cos^4-like falloff
-    ``(1 + c rho**2)**-2`` of the normalised radius rho, see :mod:`sim.camera.optics`); 0 is off."""
-    distortion: float = number(0.0, Range(-0.14, 1), "(radial k1, normalised by the half-diagonal)")
-    """Radial lens distortion k1 (Brown model, radius normalised by the half-diagonal), in
-    [-0.14, 1]: a point at radius rho is seen at ``rho (1 + k1 rho**2)``; negative is barrel,
-    0 is off."""
-    jpeg_quality: int = integer(0, Range(0, 100), "(0: no JPEG)")
-    """JPEG quality 1..100 of the captures (OpenCV), or 0: no compression (lossless PNG)."""
-    exposure_mode: str = choice("manual", ("manual", "rule"))
-    """``"manual"``: ``exposure`` is used as given; ``"rule"``: set from captures of plain white
-    and plain black as the official README tells (plain white slightly over-exposed:
-    :data:`sim.camera.WHITE_CLIPPED_FRACTION` of the pixels at code 255), recorded in the
-    dataset's ``meta.json``."""
+
+
+CameraConfig = combine(
+    "CameraConfig", (CameraView, *(stage.options for stage in camera_chain.STAGES)),
+    """The camera: the keys of :class:`CameraView` (pose, field of view, resolution, thin lens),
+    then those of each stage of :data:`sim.camera.chain.CHAIN` in order (optics, exposure, noise,
+    response, …), each declared and documented by its stage's options.""", __name__)
 
 
 @dataclass(frozen=True)
