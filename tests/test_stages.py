@@ -6,7 +6,6 @@ import dataclasses
 import shutil
 import subprocess
 import sys
-import textwrap
 from dataclasses import replace
 from pathlib import Path
 
@@ -18,8 +17,8 @@ import sim
 from sim import camera, projector, seeds
 from sim.camera import chain as camera_chain
 from sim.camera.noise import stream_version
-from sim.projector import chain as projector_chain
 from sim.options import number
+from sim.projector import chain as projector_chain
 from sim.setup import CameraConfig, ProjectorConfig
 from sim.setup.schema import CameraView, ProjectorView
 from sim.stages import Stage, streams_version, switch_off
