@@ -173,6 +173,39 @@ def _given_options(args: argparse.Namespace) -> dict:
     return {k: getattr(args, k) for k in names if getattr(args, k, None) is not None}
 
 
+def _fraction(text: str) -> float:
+    """Parse a share of pixels in [0, 1)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a fraction in [0, 1), e.g. 0.01")
+    return value
+
+
+def _target_options(p: argparse.ArgumentParser, default: str | None) -> None:
+    """``--target-policy`` and ``--out-of-reach`` (None defaults: the study file's)."""
+    from compensation.experiments.targets import DEFAULT_OUT_OF_REACH, POLICIES
+
+    g = p.add_argument_group("closed-loop target")
+    shown = f"default {default}" if default else "default: the study file's, else global"
+    g.add_argument("--target-policy", choices=POLICIES, default=default,
+                   help="what the desired image y is mapped to before it is compensated and "
+                        "scored: none (y as is), global (one map y' = a·y + b per setup, the "
+                        "largest contrast a that keeps all but --out-of-reach of the pixels within "
+                        f"what the projector can show), image (that map per desired image); {shown}")
+    g.add_argument("--out-of-reach", type=_fraction, default=None if default is None else DEFAULT_OUT_OF_REACH,
+                   help=f"share of pixels a global or image map may leave out of reach (default "
+                        f"{DEFAULT_OUT_OF_REACH:g})")
+
+
+def _target(args: argparse.Namespace):
+    from compensation.experiments.targets import TargetPolicy
+
+    return TargetPolicy(args.target_policy, args.out_of_reach)
+
+
 def cmd_train(args: argparse.Namespace) -> None:
     from compensation.experiments.runs import train_run
     from compensation.methods import make_config
@@ -206,7 +239,7 @@ def cmd_compensate(args: argparse.Namespace) -> None:
     import numpy as np
     import torch
 
-    from compensation.experiments.runs import compensate, read_run_config, run_size
+    from compensation.experiments.runs import compensate, compensation_target, read_run_config, run_size
     from sim.io import read_png, to_float, to_uint8, write_png
 
     def tensor(images: list) -> torch.Tensor:
@@ -229,7 +262,12 @@ def cmd_compensate(args: argparse.Namespace) -> None:
     images = [img if img.shape[:2] == (h, w) else cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
               for img in images]
     desired = tensor(images[:len(args.desired)])
+    desired, mapped = compensation_target(args.run, desired, _target(args))
     frames = compensate(args.run, desired, tensor(images[-1:]) if surface is not None else None)
+    if mapped["policy"] != "none":
+        print(f"procam: compensating y' = a·y + b ({mapped['policy']} target, at most "
+              f"{100 * mapped['out_of_reach']:g} % of the pixels out of reach): a = {mapped['a']:.4f}, "
+              f"b = {mapped['b']:.4f}" + (" (means over the images)" if mapped["policy"] == "image" else ""))
     frames = frames.permute(0, 2, 3, 1).numpy()
     out = Path(args.out)
     targets = [out] if len(args.desired) == 1 and out.suffix == ".png" else [out / n for n in names]
@@ -242,7 +280,8 @@ def add_compensate(sub) -> None:
     p = sub.add_parser("compensate", help="the projector frame that shows a desired image",
                        description="x* = π†(y): the frame to send to the projector so that the "
                                    "setup of a trained run (or an official CompenNet checkpoint) "
-                                   "shows the desired image y.")
+                                   "shows the desired image y (with --target-policy global or image: "
+                                   "y mapped into what the run's setup can show, x* = π†(y')).")
     p.add_argument("run", help="a run directory written by `procam train`, or a CompenNet state dict "
                                "file (.pth, e.g. from the official code; needs --surface)")
     p.add_argument("desired", nargs="+", help="desired image(s) (PNG/JPEG), resized to the run's size "
@@ -251,6 +290,7 @@ def add_compensate(sub) -> None:
                                      "view); required with a .pth, for a run it replaces the one of "
                                      "the dataset it was trained on")
     p.add_argument("--out", required=True, help="output PNG (one image) or folder")
+    _target_options(p, "none")
     p.set_defaults(func=cmd_compensate)
 
 
@@ -284,7 +324,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
         raise ProcamError("--n-train: the bench takes its training sizes from --sizes")
     cfg = BenchConfig(profile=args.profile, methods=tuple(args.methods.split(",")),
                       sizes=args.sizes, tables=tuple(args.tables.split(",")), size=args.size,
-                      n_test=n_test, overrides=options, closed_loop=args.closed_loop)
+                      n_test=n_test, overrides=options, closed_loop=args.closed_loop, target=_target(args))
     if args.only is not None and not args.suite:
         raise ProcamError("--only selects setups of a suite: give the suite (the setups found under "
                           "--data are all taken)")
@@ -328,6 +368,7 @@ def add_bench(sub) -> None:
                    help="also project every compensation back through the setup and score it "
                         "(simulated setups only: those with a setup.toml)")
     _training_options(p)
+    _target_options(p, "global")
     _executor_options(p)
     p.set_defaults(func=cmd_bench)
 
@@ -342,7 +383,8 @@ def cmd_study(args: argparse.Namespace) -> None:
     study = with_overrides(load_study(study_file(args.study)), size=args.size, n_train=args.n_train,
                            n_test=args.n_test, iters=args.iters, seeds=args.seeds,
                            methods=_methods(args.methods) if args.methods else None,
-                           only=_methods(args.only) if args.only else None)
+                           only=_methods(args.only) if args.only else None,
+                           target_policy=args.target_policy, out_of_reach=args.out_of_reach)
     executor = _executor(args)
     done = run_study(study, Path(args.out), executor, progress=not args.quiet and executor.name == "local")
     print(f"procam: study {study.name}: {done['jobs']} runs ({done['trained']} trained, "
@@ -384,6 +426,7 @@ def add_study(sub) -> None:
                                       "(e.g. 0,2 or '*aperture-0p01*'); results.csv then holds "
                                       "their rows only")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    _target_options(p, None)
     _executor_options(p)
     p.set_defaults(func=cmd_study)
 
@@ -391,7 +434,7 @@ def add_study(sub) -> None:
 def cmd_demo(args: argparse.Namespace) -> None:
     from compensation.demo import run_demo
 
-    run_demo(Path(args.out), progress=not args.quiet)
+    run_demo(Path(args.out), progress=not args.quiet, target=_target(args))
 
 
 def add_demo(sub) -> None:
@@ -401,6 +444,7 @@ def add_demo(sub) -> None:
                                    "iterative-feedback oracle), print the table and write a figure.")
     p.add_argument("--out", default="out", help="output folder (default: out)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    _target_options(p, "global")
     p.set_defaults(func=cmd_demo)
 
 

@@ -1,9 +1,11 @@
 """``procam demo``: the whole pipeline on embedded defaults, in minutes on a laptop CPU.
 
 Render the shipped default setup at the quick profile, fit CompenNet and TPS, score both on the
-surrogate benchmark and in closed loop (their compensation projected back through the simulated
-setup), beside the iterative-feedback oracle and the reachable share of pixels; print the table and
-write a figure: surface, uncompensated, each method's compensated capture, desired. The folder is a
+surrogate benchmark and in closed loop (their compensation of the target y' projected back through
+the simulated setup and scored against y'; y' is the desired image mapped by the target policy,
+:mod:`~compensation.experiments.targets`), beside the iterative-feedback oracle and the reachable
+share of y''s pixels; print the table, headed by the policy and its map, and write a figure:
+surface, uncompensated, each method's compensated capture, target. The folder is a
 one-point bench (``study.json``, ``results.csv``, each run's closed-loop captures), and the demo ends
 by writing its HTML report (``report.html``, :mod:`compensation.reports.report`).
 """
@@ -15,11 +17,12 @@ import numpy as np
 import torch
 
 from compensation.data import load_setup_data
-from compensation.experiments.closed_loop import (closed_loop, closed_loop_scores, iterative_refinement,
+from compensation.experiments.closed_loop import (closed_loop, closed_loop_target, iterative_refinement,
                                                  reachable_mask, reachable_overlay, simulator_for,
-                                                 write_captures)
+                                                 uncompensated, write_captures)
+from compensation.experiments.targets import TargetPolicy
 from compensation.reports.report import build_report
-from compensation.experiments.jobs import reusable, write_results, write_study_record
+from compensation.experiments.jobs import reusable, target_cells, write_results, write_study_record
 from compensation.methods import applicable, make_config
 from compensation.training.config import PROFILES
 from compensation.experiments.runs import SCORES, load_run, train_run
@@ -52,21 +55,21 @@ def _scores(metrics: dict, closed: dict) -> dict:
             "fit_s": metrics["train_seconds"], "infer_ms": closed["infer_ms_per_frame"]}
 
 
-def figure(surface: torch.Tensor, uncompensated: torch.Tensor, compensated: dict[str, torch.Tensor],
+def figure(surface: torch.Tensor, as_is: torch.Tensor, compensated: dict[str, torch.Tensor],
            desired: torch.Tensor, reachable: torch.Tensor) -> np.ndarray:
-    """A grid, one row per image: surface s̃ | y projected as is | x* of each method projected | y |
-    y with its unreachable pixels tinted.
+    """A grid, one row per image: surface s̃ | y' projected as is | x* of each method projected | y' |
+    y' with its unreachable pixels tinted.
 
     Parameters
     ----------
     surface : torch.Tensor
         s̃ (1, 3, H, W), encoded [0, 1].
-    uncompensated, desired : torch.Tensor
-        (N, 3, H, W) captures of y projected as is, and y.
+    as_is, desired : torch.Tensor
+        (N, 3, H, W) captures of the targets y' projected as is, and y'.
     compensated : dict[str, torch.Tensor]
         Per method, the (N, 3, H, W) captures of its compensation images.
     reachable : torch.Tensor
-        bool (N, H, W): pixels of y the projector can produce on the surface.
+        bool (N, H, W): pixels of y' the projector can produce on the surface.
 
     Returns
     -------
@@ -78,8 +81,8 @@ def figure(surface: torch.Tensor, uncompensated: torch.Tensor, compensated: dict
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    columns = {"surface s̃": surface.expand_as(desired), "uncompensated": uncompensated,
-               **{f"{name} (closed loop)": c for name, c in compensated.items()}, "desired y": desired,
+    columns = {"surface s̃": surface.expand_as(desired), "uncompensated": as_is,
+               **{f"{name} (closed loop)": c for name, c in compensated.items()}, "target y'": desired,
                "unreachable (magenta)": reachable_overlay(desired, reachable)}
     n = desired.shape[0]
     fig, axes = plt.subplots(n, len(columns), figsize=(2 * len(columns), 2.1 * n), squeeze=False)
@@ -98,7 +101,26 @@ def figure(surface: torch.Tensor, uncompensated: torch.Tensor, compensated: dict
     return np.ascontiguousarray(rgba[..., :3])
 
 
-def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
+def _policy_line(record: dict) -> str:
+    """The table's heading line: what the closed-loop rows are scored against.
+
+    >>> _policy_line({"policy": "global", "out_of_reach": 0.01, "out_of_reach_used": 0.01, "a": 0.4, "b": 0.08})
+    "closed loop against y' = 0.4000·y + 0.0800 (target policy global: at most 1 % of the pixels out of reach)"
+    >>> _policy_line({"policy": "global", "out_of_reach": 0.01, "out_of_reach_used": 0.3, "a": 0.03, "b": 0.14})
+    "closed loop against y' = 0.0300·y + 0.1400 (target policy global: at most 30 % of the pixels out of reach, the least that leaves any contrast; 1 % asked)"
+    >>> _policy_line({"policy": "none", "out_of_reach": 0.01, "a": 1.0, "b": 0.0, "gap": 0.0})
+    "closed loop against y' = y, the desired image itself (target policy none)"
+    """
+    if record["policy"] == "none":
+        return "closed loop against y' = y, the desired image itself (target policy none)"
+    mean = ", means over the images" if record["policy"] == "image" else ""
+    used, asked = 100 * record["out_of_reach_used"], 100 * record["out_of_reach"]
+    relaxed = f", the least that leaves any contrast; {asked:g} % asked" if used > asked + 1e-9 else ""
+    return (f"closed loop against y' = {record['a']:.4f}·y + {record['b']:.4f} (target policy "
+            f"{record['policy']}: at most {used:.3g} % of the pixels out of reach{relaxed}{mean})")
+
+
+def run_demo(out: Path, progress: bool = True, target: TargetPolicy = TargetPolicy(), **overrides) -> dict:
     """Run the demo into ``out`` (resumable: a finished dataset or run is reused).
 
     Parameters
@@ -108,6 +130,8 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
         ``demo.json``, ``study.json``, ``results.csv`` and ``report.html`` go there.
     progress : bool
         Show progress bars.
+    target : TargetPolicy
+        What the closed loop scores against (default: the ``global`` map).
     **overrides
         Training options over the quick profile (e.g. ``size``, ``n_train``, ``n_test``,
         ``iters`` for a smaller run); the dataset is rendered at the resulting size and counts.
@@ -115,8 +139,9 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
     Returns
     -------
     dict
-        What ``demo.json`` holds: ``uncompensated``, per method ``surrogate``, ``closed_loop``
-        and ``train_seconds``, and ``oracle`` (iterative refinement rows).
+        What ``demo.json`` holds: ``uncompensated`` (closed loop, y' projected as is, with the
+        ``target`` record), per method ``surrogate``, ``closed_loop`` and ``train_seconds``, and
+        ``oracle`` (iterative refinement rows).
     """
     out = Path(out)
     prof = {**PROFILES[PROFILE], **{k: v for k, v in overrides.items() if v is not None}}
@@ -128,9 +153,11 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
     y = data.test.frames
     lines = [f"| {'method':<40} |  PSNR  |  RMSE  |  SSIM  |   ΔE   | PSNR reachable |",
              f"|{'-' * 42}|--------|--------|--------|--------|----------------|"]
-    mask = reachable_mask(data, y)
-    results = {"uncompensated": closed_loop_scores(data.test.captures, y, mask)}
-    lines.append(_row("uncompensated (y projected as is)", results["uncompensated"]))
+    y_target, _ = closed_loop_target(data, y[:N_FIGURE], target)
+    mask = reachable_mask(data, y_target)
+    unc, as_is = uncompensated(data, sim, policy=target)
+    results = {"uncompensated": unc}
+    lines.append(_row("uncompensated (y' projected as is)", unc))
     captures, rows = {}, []
     for name in METHODS:
         run_dir = out / "runs" / f"default-{name}"
@@ -139,7 +166,7 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
         if metrics is None:
             metrics = train_run(setup_dir, train_cfg, run_dir, progress, overwrite=True)
         method, config = load_run(run_dir)
-        closed, captured = closed_loop(method, data, sim, return_captures=True)
+        closed, captured = closed_loop(method, data, sim, return_captures=True, policy=target)
         write_captures(run_dir, captured)
         captures[name] = captured[:N_FIGURE]
         results[name] = {"surrogate": {k: metrics[k] for k in SCORES},
@@ -147,15 +174,14 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
         rows.append({"method": name, "n_train": prof["n_train"], "seed": config["train"]["seed"],
                      "run": f"runs/{run_dir.name}", **_scores(metrics, closed)})
         lines.append(_row(f"{name}: surrogate π†(x̃) vs x", metrics))
-        lines.append(_row(f"{name}: closed loop, capture vs y", closed))
-    results["oracle"] = iterative_refinement(data, sim, report=(ORACLE_ITERATIONS,))
+        lines.append(_row(f"{name}: closed loop, capture vs y'", closed))
+    results["oracle"] = iterative_refinement(data, sim, report=(ORACLE_ITERATIONS,), policy=target)
     lines.append(_row(f"oracle: feedback, {ORACLE_ITERATIONS} it. ({ORACLE_ITERATIONS + 1} projections)",
                       results["oracle"][-1]))
-    write_png(out / "demo.png", figure(data.surface, data.test.captures[:N_FIGURE], captures, y[:N_FIGURE],
-                                       mask[:N_FIGURE]))
+    write_png(out / "demo.png", figure(data.surface, as_is[:N_FIGURE], captures, y_target, mask))
     write_json(out / "demo.json", results)
-    unc, oracle = results["uncompensated"], results["oracle"][-1]
-    base = {"point": 0, "setup": setup.name, "status": "ok", "error": "",
+    oracle = results["oracle"][-1]
+    base = {"point": 0, "setup": setup.name, "status": "ok", "error": "", **target_cells(unc),
             **{f"cl_unc_{k}": unc[m] for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))},
             **{f"oracle_{k}": oracle[m] for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))}}
     study = {"name": "demo", "kind": "bench", "question": "How well do CompenNet and TPS compensate "
@@ -163,7 +189,7 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
              "base": "default", "axes": [], "methods": list(METHODS),
              "seeds": sorted({r["seed"] for r in rows}), "n_train": prof["n_train"],
              "n_test": prof["n_test"], "size": [prof["size"]] * 2, "profile": PROFILE,
-             "overrides": {k: v for k, v in overrides.items() if v is not None},
+             "overrides": {k: v for k, v in overrides.items() if v is not None}, "target": target.record(),
              "setups": {setup.name: f"data/{setup.name}/{SETUP_FILE}"}}
     write_study_record(out, study)
     write_results(out, (), [{**base, **r} for r in rows])
@@ -172,8 +198,9 @@ def run_demo(out: Path, progress: bool = True, **overrides) -> dict:
     reachable = results["uncompensated"]["reachable_fraction"]
     print(f"\nprocam demo: default setup, {PROFILE} profile ({prof['size']}² px, "
           f"{prof['n_train']} train / {prof['n_test']} test pairs)\n")
+    print(_policy_line(unc["target"]) + "; surrogate rows against x\n")
     print("\n".join(lines))
-    print(f"\n{100 * reachable:.1f} % of the desired pixels are physically reachable on this surface; "
+    print(f"\n{100 * reachable:.1f} % of the target's pixels are physically reachable on this surface; "
           "'PSNR reachable' scores those only. SSIM as the official CompenNet code computes it; ΔE: "
           "CIEDE2000.")
     print(f"figure -> {out / 'demo.png'}; numbers -> {out / 'demo.json'}")

@@ -6,14 +6,19 @@ import pytest
 import torch
 
 from compensation.data import load_setup_data
-from compensation.experiments.closed_loop import (closed_loop, closed_loop_scores, iterative_refinement,
-                                                 reachable_mask, reachable_overlay, simulator_for)
+from compensation.experiments.closed_loop import (closed_loop, closed_loop_scores, closed_loop_target,
+                                                 iterative_refinement, project, reachable_mask,
+                                                 reachable_overlay, simulator_for, uncompensated)
+from compensation.experiments.targets import TargetPolicy
 from compensation.scores.metrics import masked_scores, psnr, rmse
 from compensation.methods.base import Method
 from compensation.training.config import NoOptions
 from helpers import tiny_setup
 from sim.capture import Simulator
+from sim import seeds
 from sim.dataset import FrameSpec, write_setup
+
+NONE = TargetPolicy("none")
 
 
 class Identity(Method):
@@ -56,6 +61,14 @@ def white(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def matte(tmp_path_factory):
+    """A uniform grey surface in a dim room: the projector reaches a band of values, not [0, 1]."""
+    return _dataset(tmp_path_factory.mktemp("matte"), "matte", surface={"texture": "uniform", "albedo_scale": 0.6},
+                    ambient={"radiance": [0.02, 0.02, 0.02]},
+                    camera={"shot_noise": 1e-5, "read_noise": 1e-3})
+
+
+@pytest.fixture(scope="module")
 def textured(tmp_path_factory):
     return _dataset(tmp_path_factory.mktemp("tex"), "tex", surface={"texture": "noise", "albedo_scale": 0.9},
                     ambient={"radiance": [0.02, 0.02, 0.02]},
@@ -64,7 +77,7 @@ def textured(tmp_path_factory):
 
 def test_identity_on_a_white_surface_reproduces_the_desired_image(white):
     data, sim = white
-    scores = closed_loop(Identity(), data, sim)
+    scores = closed_loop(Identity(), data, sim, policy=NONE)
     assert scores["psnr"] > 30 and scores["ssim"] > 0.95
     # only the brightest pixels towards the frame's edges (irradiance falls off as cos³ off-axis)
     # are beyond reach
@@ -105,7 +118,7 @@ def test_iterative_refinement_lowers_the_error_monotonically(textured):
     black, white = data.ref.captures[0:1], data.ref.captures[124:125]
     desired = black + (white - black) * (0.1 + 0.8 * data.test.frames)
     assert reachable_mask(data, desired).all()
-    rows = iterative_refinement(data, sim, desired=desired, report=(0, 1, 2, 3, 4))
+    rows = iterative_refinement(data, sim, desired=desired, report=(0, 1, 2, 3, 4), policy=NONE)
     rmse = [r["rmse"] for r in rows]
     assert all(b < a for a, b in zip(rmse, rmse[1:])), rmse
     assert rmse[-1] < 0.5 * rmse[0]
@@ -126,10 +139,64 @@ def test_iterative_refinement_starts_from_the_datasets_test_captures(textured):
             calls.append(stream)
             return sim.capture(frames, stream, start)
 
-    rows = iterative_refinement(data, Counting(), report=(0, 1))
+    rows = iterative_refinement(data, Counting(), report=(0, 1), policy=NONE)
     y, mask = data.test.frames, reachable_mask(data, data.test.frames)
     assert rows[0] == {"iterations": 0, **closed_loop_scores(data.test.captures, y, mask), "projections": 4}
     assert len(calls) == 1 and rows[1]["projections"] == 8
+    # another target was never captured: the first row projects it, as the uncompensated row does
+    calls.clear()
+    policy = TargetPolicy("global", 0.2)  # this dim textured surface: 1 % leaves no contrast
+    rows = iterative_refinement(data, Counting(), report=(0,), policy=policy)
+    assert calls == [seeds.CLOSED_LOOP + 1]
+    unc, _ = uncompensated(data, sim, policy=policy)
+    assert rows[0]["psnr_per_image"] == unc["psnr_per_image"] and rows[0]["psnr"] == unc["psnr"]
+
+
+def test_the_policy_none_is_the_closed_loop_against_the_desired_image(textured):
+    """Under ``none`` every closed-loop score is what it was before target policies: the capture
+    of π†(y) against y, the dataset's test captures for the uncompensated row."""
+    data, sim = textured
+    y = data.test.frames
+    target, record = closed_loop_target(data, y, NONE)
+    assert target is y and (record["a"], record["b"]) == (1.0, 0.0)
+    scores = closed_loop(Identity(), data, sim, policy=NONE)
+    by_hand = closed_loop_scores(project(sim, y, seeds.CLOSED_LOOP), y, reachable_mask(data, y))
+    assert {k: scores[k] for k in by_hand} == by_hand
+    assert scores["target"]["policy"] == "none"
+    unc, captured = uncompensated(data, sim, policy=NONE)
+    assert captured is data.test.captures
+    assert {k: unc[k] for k in by_hand} == closed_loop_scores(data.test.captures, y, reachable_mask(data, y))
+
+
+def test_global_and_image_targets_are_within_reach(matte):
+    """The global map keeps at least 99 % of every target's pixels in reach (the mask allows two
+    levels of noise on top), the closed loop compares with y' and the image map never has less
+    contrast than the global one (every global map is feasible for each image)."""
+    data, sim = matte
+    y = data.test.frames
+    assert reachable_mask(data, y).float().mean() < 0.5  # the desired images themselves are not
+    target, record = closed_loop_target(data, y, TargetPolicy())
+    assert 0.2 < record["a"] < 1 and record["b"] > 0 and record["gap"] == 0
+    assert torch.allclose(target, (record["a"] * y + record["b"]).clamp(0, 1), atol=1e-6)
+    assert (reachable_mask(data, target).float().mean(dim=(1, 2)) >= 0.99).all()
+    scores = closed_loop(Identity(), data, sim)
+    assert scores["target"] == record and scores["reachable_fraction"] >= 0.99
+    image, per_image = closed_loop_target(data, y, TargetPolicy("image"))
+    assert all(a >= record["a"] - g for a, g in zip(per_image["a_per_image"], [per_image["gap"]] * len(y)))
+    assert (reachable_mask(data, image).float().mean(dim=(1, 2)) >= 0.99).all()
+    # on targets within reach the feedback oracle gains far more than on y itself
+    gain = {name: [r["psnr"] for r in iterative_refinement(data, sim, report=(0, 4), policy=TargetPolicy(name))]
+            for name in ("none", "global")}
+    assert gain["global"][1] - gain["global"][0] > 3 + gain["none"][1] - gain["none"][0], gain
+
+
+def test_a_textured_surface_relaxes_the_share_out_of_reach(textured):
+    """This dim textured surface under room light leaves no grey level in reach of 99 % of its
+    pixels: the global map takes the smallest share that admits a contrast, and says so."""
+    data, _ = textured
+    target, record = closed_loop_target(data, data.test.frames, TargetPolicy())
+    assert record["out_of_reach"] == 0.01 and 0.01 < record["out_of_reach_used"] < 0.9 and record["a"] > 0
+    assert (reachable_mask(data, target).float().mean(dim=(1, 2)) >= 1 - record["out_of_reach_used"]).all()
 
 
 def test_reachable_mask_flags_what_the_projector_cannot_do(textured):

@@ -8,6 +8,7 @@ import imageio.v3 as iio
 import pytest
 
 from compensation.demo import METHODS, N_FIGURE, ORACLE_ITERATIONS, run_demo
+from compensation.experiments.targets import TargetPolicy
 
 SMALL = dict(size=32, n_train=8, n_test=N_FIGURE, iters=10, batch=4)
 """32² with 8 training pairs; CompenNet trains 10 iterations (TPS takes neither)."""
@@ -23,8 +24,11 @@ REACHABLE_MARGIN_DB = 4.0
 
 @pytest.mark.slow
 def test_demo_tiny(tmp_path, capsys):
-    results = run_demo(tmp_path, progress=False, **SMALL)
+    # the margins below are those of the desired images themselves (target policy none, the
+    # closed loop as it was before target policies)
+    results = run_demo(tmp_path, progress=False, target=TargetPolicy("none"), **SMALL)
     out = capsys.readouterr().out
+    assert "closed loop against y' = y, the desired image itself (target policy none)" in out
     assert f"({SMALL['size']}² px, {SMALL['n_train']} train / {SMALL['n_test']} test pairs)" in out
     for name in METHODS:
         assert f"{name}: surrogate" in out and f"{name}: closed loop" in out
@@ -70,3 +74,10 @@ def test_demo_tiny(tmp_path, capsys):
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps and len(stamps) == len(METHODS)
     for name in METHODS:
         assert again[name]["surrogate"] == results[name]["surrogate"]
+        # the second run took the default target policy: scored again against y', not reused
+        assert results[name]["closed_loop"]["target"]["policy"] == "none"
+        assert again[name]["closed_loop"]["target"]["policy"] == "global"
+        assert again[name]["closed_loop"]["psnr"] != results[name]["closed_loop"]["psnr"]
+    assert "(target policy global: at most" in capsys.readouterr().out
+    with open(tmp_path / "results.csv", newline="") as f:
+        assert {r["target_policy"] for r in csv.DictReader(f)} == {"global"}

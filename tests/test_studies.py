@@ -18,6 +18,7 @@ from compensation.cli import main
 from compensation.experiments.jobs import RESULT_COLUMNS, run_status
 from compensation.reports.summary import STATUSES
 from compensation.experiments.studies import expand, load_study, with_overrides
+from compensation.experiments.targets import TargetPolicy
 from compensation.methods import METHODS
 from sim.errors import ProcamError
 from sim.setup.schema import SECTIONS
@@ -114,6 +115,22 @@ def test_bad_only_is_named(tmp_path):
         'base = "base.toml"\nmethods = ["nayar"]\nonly = "light1"\n[[axis]]\nkey = "ambient.radiance"\nvalues = [0.1]\n')
     with pytest.raises(ProcamError, match=r"study\.toml: only = 'light1': expected a list of setup-name patterns"):
         load_study(tmp_path / "study.toml")
+
+
+def test_target_policy_key_and_override(tmp_path):
+    (tmp_path / "base.toml").write_text(BASE)
+    head = 'base = "base.toml"\nmethods = ["nayar"]\n'
+    axis = '[[axis]]\nkey = "ambient.radiance"\nvalues = [0.1]\n'
+    (tmp_path / "study.toml").write_text(head + 'target_policy = "image"\nout_of_reach = 0.05\n' + axis)
+    study = load_study(tmp_path / "study.toml")
+    assert study.target == TargetPolicy("image", 0.05)
+    assert load_study(ROOT / "scenes" / "studies" / "projector-defocus.toml").target == TargetPolicy()
+    changed = with_overrides(study, target_policy="none")
+    assert changed.target == TargetPolicy("none", 0.05) and changed.overrides["target_policy"] == "none"
+    assert with_overrides(study, out_of_reach=0.2).target == TargetPolicy("image", 0.2)
+    (tmp_path / "bad.toml").write_text(head + 'target_policy = "clip"\n' + axis)
+    with pytest.raises(ProcamError, match=r"bad\.toml: target policy 'clip': expected one of none, global, image"):
+        load_study(tmp_path / "bad.toml")
 
 
 def test_training_axis_shares_runs_of_methods_without_the_option():

@@ -31,6 +31,7 @@ from pathlib import Path
 from compensation.experiments.executors import LocalExecutor
 from compensation.experiments.jobs import simulated, write_results, write_study_record
 from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name
+from compensation.experiments.targets import TargetPolicy
 from compensation.methods import applicable, get_method, make_config
 from compensation.training.config import COMMON, PROFILES
 from sim.dataset import FrameSpec
@@ -59,6 +60,8 @@ class BenchConfig:
     ``seed`` or ``device`` to all runs, e.g. ``iters`` to the network methods)."""
     closed_loop: bool = False
     """Also score every run in closed loop and add the iterative-refinement oracle."""
+    target: TargetPolicy = TargetPolicy()
+    """What the closed loop scores against (:mod:`~compensation.experiments.targets`)."""
 
     def __post_init__(self):
         for name in self.methods:
@@ -240,7 +243,7 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
     plan = bench_plan(cfg, out, suite, setups, white)
     spec = FrameSpec(max(max(cfg.sizes), TABLE2["n_train"]), cfg.tests, (cfg.canonical,) * 2)
     scoring = Scoring(cfg.tests, cfg.closed_loop, official=True, masks=cfg.closed_loop,
-                      renders_required=True)
+                      renders_required=True, target=cfg.target)
     outcome = execute(plan, out, data_root, spec, scoring, executor, setups, progress)
     seed = cfg.overrides.get("seed", 0)
     tabled = [r for r in plan.runs if r.labels["table"] != "pretrain"]
@@ -251,7 +254,7 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         "kind": "bench", "base": None, "axes": [], "methods": list(cfg.methods), "seeds": [seed],
         "n_train": list(cfg.sizes), "n_test": cfg.tests, "size": [cfg.canonical] * 2 if suite else None,
         "overrides": cfg.overrides, "tables": list(cfg.tables), "profile": cfg.profile,
-        "executor": executor.name,
+        "target": cfg.target.record() if cfg.closed_loop else None, "executor": executor.name,
         "setups": {s: os.path.relpath(data_root / s / SETUP_FILE, out) for s in setups
                    if simulated(data_root / s)}})
 

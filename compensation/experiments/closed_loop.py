@@ -1,9 +1,14 @@
-"""The measurement no real benchmark can make: project x* = π†(y) back through the same simulated
-setup and score what the camera sees against the desired image y.
+"""The measurement no real benchmark can make: project x* = π†(y') back through the same simulated
+setup and score what the camera sees against the target y'.
+
+The target y' is the desired image y mapped into what the setup can show by a target policy
+(:mod:`~compensation.experiments.targets`: ``none`` keeps y' = y; ``global``, the default, one map
+y' = a·y + b per setup; ``image``, one per desired image). Every closed-loop score compares with
+y': a method's (it compensates y'), the uncompensated row's (y' projected as is) and the oracle's.
 
 Also the model-free iterative feedback refinement of Nayar et al. (project, capture, correct the
-frame by the error, repeat) and the physically reachable bound: pixels where y lies outside what
-the projector can produce on that surface (between the captures of a black and a white frame).
+frame by the error, repeat) and the physically reachable pixels: those where y' lies between the
+captures of a black and a white frame.
 """
 from __future__ import annotations
 
@@ -15,7 +20,8 @@ import numpy as np
 import torch
 
 from compensation.data import SetupData
-from compensation.scores.metrics import evaluate, masked_scores
+from compensation.experiments.targets import IDENTITY, TargetPolicy, map_record, map_targets
+from compensation.scores.metrics import evaluate, masked_scores, psnr_from_mse
 from sim import seeds
 from sim.capture import Simulator
 from sim.dataset import canonical_size
@@ -94,6 +100,12 @@ def project(sim: Simulator, frames: torch.Tensor, stream: int) -> torch.Tensor:
     return torch.from_numpy(to_float(caps)).permute(0, 3, 1, 2).contiguous()
 
 
+def reach_bounds(data: SetupData) -> tuple[torch.Tensor, torch.Tensor]:
+    """The captures of the black (0001) and white (0125) plain frames, each (1, 3, H, W): at each
+    pixel and channel, what the projector can show lies between them."""
+    return data.ref.captures[0:1], data.ref.captures[124:125]
+
+
 def reachable_mask(data: SetupData, desired: torch.Tensor) -> torch.Tensor:
     """Pixels whose desired value the projector can produce on that surface.
 
@@ -105,9 +117,33 @@ def reachable_mask(data: SetupData, desired: torch.Tensor) -> torch.Tensor:
     torch.Tensor
         bool (N, H, W).
     """
-    black, white = data.ref.captures[0:1], data.ref.captures[124:125]
+    black, white = reach_bounds(data)
     ok = (desired >= black - REACH_TOLERANCE) & (desired <= white + REACH_TOLERANCE)
     return ok.all(dim=1)
+
+
+def closed_loop_target(data: SetupData, desired: torch.Tensor,
+                       policy: TargetPolicy) -> tuple[torch.Tensor, dict]:
+    """The targets y' of desired images under ``policy``, and their record (the policy, ``a``,
+    ``b``: :func:`~compensation.experiments.targets.map_record`).
+
+    Parameters
+    ----------
+    desired : torch.Tensor
+        y, float32 (N, 3, H, W) in [0, 1].
+
+    Returns
+    -------
+    torch.Tensor
+        y', float32 (N, 3, H, W) in [0, 1] (``desired`` itself under ``none``).
+    dict
+        The record.
+    """
+    if policy.name == "none":
+        return desired, map_record(policy, [IDENTITY] * len(desired))
+    black, white = (b[0].double().numpy() for b in reach_bounds(data))
+    target, record = map_targets(policy, desired.double().numpy(), black, white)
+    return torch.from_numpy(target).float(), record
 
 
 def reachable_overlay(desired: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -131,16 +167,20 @@ def reachable_overlay(desired: torch.Tensor, mask: torch.Tensor) -> torch.Tensor
 
 def closed_loop_scores(captured: torch.Tensor, y: torch.Tensor, mask: torch.Tensor, batch_size: int = 64) -> dict:
     """Closed-loop scores of captures against y: ``psnr``/``rmse``/``ssim`` over all pixels,
-    ``psnr_reachable``/``rmse_reachable`` over the reachable ones (``mask``, bool (N, H, W)) and
-    ``reachable_fraction``."""
+    ``psnr_reachable``/``rmse_reachable`` over the reachable ones (``mask``, bool (N, H, W)),
+    ``reachable_fraction`` and ``psnr_per_image`` (each image's PSNR, for confidence intervals)."""
     reach = masked_scores(captured, y, mask)
+    per_image = ((captured.double() - y.double()) ** 2).mean(dim=(1, 2, 3))
     return {**evaluate(captured, y, batch_size=batch_size), "psnr_reachable": reach["psnr"],
-            "rmse_reachable": reach["rmse"], "reachable_fraction": float(mask.float().mean())}
+            "rmse_reachable": reach["rmse"], "reachable_fraction": float(mask.float().mean()),
+            "psnr_per_image": [round(psnr_from_mse(float(m)), 4) for m in per_image]}
 
 
 def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
-                batch_size: int = 64, return_captures: bool = False) -> dict | tuple[dict, torch.Tensor]:
-    """Closed-loop score of a fitted method.
+                batch_size: int = 64, return_captures: bool = False,
+                policy: TargetPolicy = TargetPolicy()) -> dict | tuple[dict, torch.Tensor]:
+    """Closed-loop score of a fitted method: it compensates the target y' of each desired image
+    (x* = π†(y')), and the capture of x* is scored against y'.
 
     Parameters
     ----------
@@ -154,24 +194,27 @@ def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor |
         Desired images y (N, 3, H, W); defaults to the test frames.
     return_captures : bool
         Also return the captures of the projected compensation images.
+    policy : TargetPolicy
+        How y is mapped to the target y' (:func:`closed_loop_target`).
 
     Returns
     -------
     dict
-        ``psnr``, ``rmse``, ``ssim`` of the captured result against y; ``psnr_reachable`` and
-        ``rmse_reachable`` over the pixels of :func:`reachable_mask` only; ``reachable_fraction``
-        (share of pixels y can be produced at), ``projections`` and ``infer_ms_per_frame``
-        (wall-clock of π† per frame, batched).
+        ``psnr``, ``rmse``, ``ssim`` of the captured result against y'; ``psnr_reachable`` and
+        ``rmse_reachable`` over the pixels of :func:`reachable_mask` (of y') only;
+        ``reachable_fraction`` (share of pixels y' can be produced at), ``psnr_per_image``,
+        ``projections``, ``infer_ms_per_frame`` (wall-clock of π† per frame, batched) and
+        ``target`` (the policy and its map).
     torch.Tensor
         Only with ``return_captures``: the captures, float32 (N, 3, H, W) in [0, 1].
     """
-    y = data.test.frames if desired is None else desired
+    y, record = closed_loop_target(data, data.test.frames if desired is None else desired, policy)
     t0 = time.perf_counter()
     x_star = method.predict(y, data.surface, batch_size=batch_size)
     infer_ms = 1000 * (time.perf_counter() - t0) / y.shape[0]
     captured = project(sim, x_star, seeds.CLOSED_LOOP)
     scores = {**closed_loop_scores(captured, y, reachable_mask(data, y), batch_size),
-              "projections": int(y.shape[0]), "infer_ms_per_frame": round(infer_ms, 3)}
+              "projections": int(y.shape[0]), "infer_ms_per_frame": round(infer_ms, 3), "target": record}
     return (scores, captured) if return_captures else scores
 
 
@@ -195,32 +238,61 @@ def write_captures(run_dir: str | Path, captured: torch.Tensor, n: int = N_CAPTU
     return folder
 
 
-def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
-                         gain: float = 1.0, report: tuple[int, ...] = (1, 2, 4, 8)) -> list[dict]:
-    """Model-free feedback compensation (Nayar et al. 2003): the oracle row.
+def _as_is(data: SetupData, sim: Simulator, y: torch.Tensor, own: bool) -> torch.Tensor:
+    """Captures of the targets y projected as is: the dataset's test captures when y are its own
+    test frames unchanged (``own``; they were captured already), else fresh ones."""
+    return data.test.captures if own else project(sim, y, seeds.CLOSED_LOOP + 1)
 
-    Start from x₀ = y; project xₖ, capture cₖ, correct xₖ₊₁ = clip(xₖ + gain · (y − cₖ), 0, 1).
-    For the dataset's own test images (``desired`` None) c₀ is the dataset's test capture: y
-    projected as is was captured already, and is not projected again.
+
+def uncompensated(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
+                  policy: TargetPolicy = TargetPolicy()) -> tuple[dict, torch.Tensor]:
+    """The uncompensated closed-loop row: the target y' projected as is, scored against y'.
+
+    Under ``none`` on the dataset's own test images (``desired`` None) these are the dataset's
+    test captures; otherwise y' is projected (the stream of the oracle's first capture, so the
+    oracle's 0th row is this one).
+
+    Returns
+    -------
+    dict
+        The scores of :func:`closed_loop_scores` and ``target`` (the policy and its map).
+    torch.Tensor
+        The captures, float32 (N, 3, H, W).
+    """
+    y, record = closed_loop_target(data, data.test.frames if desired is None else desired, policy)
+    captured = _as_is(data, sim, y, desired is None and policy.name == "none")
+    return {**closed_loop_scores(captured, y, reachable_mask(data, y)), "target": record}, captured
+
+
+def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
+                         gain: float = 1.0, report: tuple[int, ...] = (1, 2, 4, 8),
+                         policy: TargetPolicy = TargetPolicy()) -> list[dict]:
+    """Model-free feedback compensation (Nayar et al. 2003) aiming at the target y': the oracle row.
+
+    Start from x₀ = y'; project xₖ, capture cₖ, correct xₖ₊₁ = clip(xₖ + gain · (y' − cₖ), 0, 1).
+    c₀ is the capture of :func:`uncompensated` (the dataset's test capture under ``none`` on its own
+    test images).
 
     Parameters
     ----------
     report : tuple of int
-        Numbers of corrections k after which the capture cₖ is scored (0 = y projected as is).
+        Numbers of corrections k after which the capture cₖ is scored (0 = y' projected as is).
+    policy : TargetPolicy
+        How y is mapped to the target y' (:func:`closed_loop_target`).
 
     Returns
     -------
     list[dict]
-        One row per k in ``report``: ``iterations`` (k), the closed-loop scores of cₖ against y
+        One row per k in ``report``: ``iterations`` (k), the closed-loop scores of cₖ against y'
         (as :func:`closed_loop`'s) and ``projections`` spent so far ((k + 1) per frame).
     """
-    y = data.test.frames if desired is None else desired
+    y, _ = closed_loop_target(data, data.test.frames if desired is None else desired, policy)
     mask = reachable_mask(data, y)
     x = y.clone()
     rows = []
     for k in range(max(report) + 1):
-        if k == 0 and desired is None:
-            captured = data.test.captures
+        if k == 0:
+            captured = _as_is(data, sim, y, desired is None and policy.name == "none")
         else:
             captured = project(sim, x, seeds.CLOSED_LOOP + 1 + k)
         if k in report:

@@ -33,6 +33,7 @@ from pathlib import Path
 
 from compensation.data import load_setup_data
 from compensation.experiments.closed_loop import CAPTURES_DIR, N_CAPTURES
+from compensation.experiments.targets import TargetPolicy
 from compensation.scores.metrics import evaluate
 from compensation.experiments.official import official_complete, official_tag, write_official_outputs
 from compensation.training.config import TrainConfig
@@ -58,9 +59,14 @@ RESULT_COLUMNS = (
     *(_column(s) for s in SCORES), *(f"cl_{_column(s)}" for s in SCORES),
     *(f"unc_{_column(s)}" for s in SCORES), "cl_unc_psnr", "cl_unc_ssim", "cl_unc_deltae",
     "oracle_psnr", "oracle_ssim", "oracle_deltae", "fit_s", "infer_ms", "run",
-    "cl_psnr_reachable", "cl_unc_psnr_reachable")
+    "cl_psnr_reachable", "cl_unc_psnr_reachable", "reachable_fraction", "target_policy",
+    "target_out_of_reach", "target_out_of_reach_used", "target_a", "target_b")
 """Columns of ``results.csv`` after ``point`` and the axis columns (an axis on ``n_train`` is the
-``n_train`` column itself); a bench adds ``table`` and ``variant``."""
+``n_train`` column itself); a bench adds ``table`` and ``variant``. The ``cl_`` and ``oracle_``
+scores compare with the target y' of ``target_policy`` (map y' = ``target_a`` · y + ``target_b``,
+the mean over the images for the ``image`` policy; ``target_out_of_reach_used``: the share of pixels
+the map was allowed to leave out, above the policy's where that admits no contrast);
+``reachable_fraction`` is the share of y''s pixels the setup can show."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +113,8 @@ class FitJob:
         Write the official code's outputs under this folder (:mod:`~compensation.experiments.official`).
     pretrained : bool
         The run starts from a pre-trained one (its official tag says so).
+    target : TargetPolicy
+        The target policy of the closed loop; a run scored under another is scored again.
     """
 
     setup_dir: Path
@@ -116,6 +124,7 @@ class FitJob:
     official: Path | None = None
     pretrained: bool = False
     progress: bool = False
+    target: TargetPolicy = TargetPolicy()
 
 
 def reusable(run_dir: Path, train_cfg: TrainConfig, setup_dir: Path) -> dict | None:
@@ -143,24 +152,38 @@ def simulated(setup_dir: Path) -> bool:
     return (Path(setup_dir) / SETUP_FILE).exists()
 
 
-def _closed_loop_done(run_dir: Path, metrics: dict) -> bool:
+def scored_under(scores: dict, policy: TargetPolicy) -> bool:
+    """Whether closed-loop scores (with their ``target`` record) were made under ``policy``.
+
+    >>> scored_under({"target": {"policy": "global", "out_of_reach": 0.01}}, TargetPolicy())
+    True
+    >>> scored_under({}, TargetPolicy("none"))
+    False
+    """
+    target = scores.get("target") or {}
+    return all(target.get(k) == v for k, v in policy.record().items())
+
+
+def _closed_loop_done(run_dir: Path, metrics: dict, policy: TargetPolicy) -> bool:
     scores = metrics.get("closed_loop", {})
     shown = min(N_CAPTURES, metrics.get("n_test", 0))
-    return (all(k in scores for k in (*SCORES, "psnr_reachable"))
+    return (all(k in scores for k in (*SCORES, "psnr_reachable", "psnr_per_image"))
+            and scored_under(scores, policy)
             and all((run_dir / CAPTURES_DIR / image_name(i)).exists() for i in range(1, shown + 1)))
 
 
-def add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int) -> dict:
-    """Score a finished run in closed loop: ``closed_loop`` added to its ``metrics.json`` (scores
-    of :func:`~compensation.experiments.closed_loop.closed_loop` and ``seconds``), the captures of
-    the first :data:`N_CAPTURES` test images written to ``run_dir/closed_loop/img_XXXX.png``
-    (canonical view). Returns the metrics."""
+def add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int, policy: TargetPolicy = TargetPolicy()) -> dict:
+    """Score a finished run in closed loop under the target ``policy``: ``closed_loop`` added to
+    its ``metrics.json`` (scores of :func:`~compensation.experiments.closed_loop.closed_loop`, with
+    their ``target``, and ``seconds``), the captures of the first :data:`N_CAPTURES` test images
+    written to ``run_dir/closed_loop/img_XXXX.png`` (canonical view). Returns the metrics."""
     from compensation.experiments.closed_loop import closed_loop, simulator_for, write_captures
 
     method, _ = load_run(run_dir)
     data = load_setup_data(setup_dir, n_train=1, n_test=n_test)
     t0 = time.perf_counter()
-    scores, captured = closed_loop(method, data, simulator_for(setup_dir), return_captures=True)
+    scores, captured = closed_loop(method, data, simulator_for(setup_dir), return_captures=True,
+                                   policy=policy)
     scores["seconds"] = round(time.perf_counter() - t0, 3)
     write_captures(run_dir, captured)
     metrics = read_json(run_dir / "metrics.json", "run metrics")
@@ -182,8 +205,8 @@ def fit(job: FitJob) -> dict:
     if job.official is not None and (trained or not official_complete(job.official, tag, metrics["n_test"])):
         data = load_setup_data(setup_dir, 1, metrics["n_test"])
         write_official_outputs(run_dir, data, Path(job.official), tag)
-    if job.closed_loop and simulated(setup_dir) and (trained or not _closed_loop_done(run_dir, metrics)):
-        metrics = add_closed_loop(run_dir, setup_dir, metrics["n_test"])
+    if job.closed_loop and simulated(setup_dir) and (trained or not _closed_loop_done(run_dir, metrics, job.target)):
+        metrics = add_closed_loop(run_dir, setup_dir, metrics["n_test"], job.target)
     return {"metrics": metrics, "trained": trained, "official_tag": tag, "run": str(run_dir)}
 
 
@@ -200,8 +223,10 @@ class BaselineJob:
         Write ``masks/<setup>.png``: the first test images with their physically unreachable
         pixels tinted magenta (closed loop only).
     record : Path or None
-        A JSON file keeping the result: reused while the dataset, ``n_test`` and the procam
-        version are the same.
+        A JSON file keeping the result: reused while the dataset, ``n_test``, the target policy
+        and the procam version are the same.
+    target : TargetPolicy
+        The target policy of the closed loop.
     """
 
     setup_dir: Path
@@ -209,20 +234,23 @@ class BaselineJob:
     closed_loop: bool = True
     masks: Path | None = None
     record: Path | None = None
+    target: TargetPolicy = TargetPolicy()
 
 
 def _baseline_key(job: BaselineJob, closed: bool) -> dict:
     meta = Path(job.setup_dir) / META_FILE
     digest = hashlib.sha1(meta.read_bytes()).hexdigest() if meta.exists() else None
     return {"dataset": str(Path(job.setup_dir).resolve()), "meta_sha1": digest, "n_test": job.n_test,
-            "closed_loop": closed, "procam_version": package_version()}
+            "closed_loop": closed, "procam_version": package_version(),
+            "target": job.target.record() if closed else None}
 
 
 def baselines(job: BaselineJob) -> dict:
     """Run a :class:`BaselineJob`; returns ``uncompensated`` (scores of the test captures x̃
-    against y, with ``closed_loop`` scores of y projected as is when simulated), ``oracle`` (the
-    rows of :func:`~compensation.experiments.closed_loop.iterative_refinement`, or None) and
-    ``size`` ([height, width])."""
+    against y, with ``closed_loop`` scores of the target y' projected as is when simulated:
+    :func:`~compensation.experiments.closed_loop.uncompensated`), ``oracle`` (the rows of
+    :func:`~compensation.experiments.closed_loop.iterative_refinement`, or None) and ``size``
+    ([height, width])."""
     setup_dir = Path(job.setup_dir)
     closed = job.closed_loop and simulated(setup_dir)
     key = _baseline_key(job, closed)
@@ -237,16 +265,19 @@ def baselines(job: BaselineJob) -> dict:
     captures, y = data.test.captures, data.test.frames
     scores, oracle = evaluate(captures, y), None
     if closed:
-        from compensation.experiments.closed_loop import (closed_loop_scores, iterative_refinement,
-                                                         reachable_mask, reachable_overlay, simulator_for)
+        from compensation.experiments.closed_loop import (closed_loop_target, iterative_refinement,
+                                                         reachable_mask, reachable_overlay, simulator_for,
+                                                         uncompensated)
 
-        mask = reachable_mask(data, y)
-        scores["closed_loop"] = closed_loop_scores(captures, y, mask)
+        sim = simulator_for(setup_dir)
+        scores["closed_loop"], _ = uncompensated(data, sim, policy=job.target)
         if job.masks is not None:
             k = min(N_CAPTURES, y.shape[0])
-            strip = reachable_overlay(y[:k], mask[:k]).permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
+            target, _ = closed_loop_target(data, y[:k], job.target)
+            strip = reachable_overlay(target, reachable_mask(data, target))
+            strip = strip.permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
             write_png(Path(job.masks) / f"{data.name}.png", to_uint8(strip.numpy()))
-        oracle = iterative_refinement(data, simulator_for(setup_dir))
+        oracle = iterative_refinement(data, sim, policy=job.target)
     result = {"uncompensated": scores, "oracle": oracle, "size": list(data.size)}
     if job.record is not None:
         write_json(job.record, {"key": key, "result": result})
@@ -279,6 +310,19 @@ def run_status(metrics: dict, run_dir: Path) -> tuple[str, str]:
     return "ok", ""
 
 
+def target_cells(closed: dict) -> dict:
+    """The ``results.csv`` cells of closed-loop scores' target and reach (empty without them).
+
+    >>> target_cells({"reachable_fraction": 0.9, "target": {"policy": "global", "out_of_reach": 0.01,
+    ...                                                      "a": 0.5, "b": 0.1}})
+    {'reachable_fraction': 0.9, 'target_policy': 'global', 'target_out_of_reach': 0.01, 'target_a': 0.5, 'target_b': 0.1}
+    """
+    target = closed.get("target") or {}
+    return {"reachable_fraction": closed.get("reachable_fraction"), "target_policy": target.get("policy"),
+            "target_out_of_reach": target.get("out_of_reach"), "target_a": target.get("a"),
+            "target_b": target.get("b")}
+
+
 def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
     """The ``results.csv`` cells of one run (all but ``point``, the axes, ``setup``, ``method``,
     ``n_train`` and ``seed``, which the caller knows).
@@ -301,7 +345,7 @@ def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
         row.update({_column(k): metrics[k] for k in SCORES})
         row.update({f"cl_{_column(k)}": cl.get(k) for k in SCORES})
         row.update(fit_s=metrics.get("train_seconds"), infer_ms=cl.get("infer_ms_per_frame"),
-                   cl_psnr_reachable=cl.get("psnr_reachable"))
+                   cl_psnr_reachable=cl.get("psnr_reachable"), **target_cells(cl))
         row.update({f"unc_{_column(k)}": metrics["uncompensated"][k] for k in SCORES})
         row["run"] = os.path.relpath(run_dir, out)
     else:
@@ -314,6 +358,8 @@ def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
         cl = unc.get("closed_loop", {})
         row.update({f"cl_unc_{_column(k)}": cl.get(k) for k in ("psnr", "ssim", "deltaE")},
                    cl_unc_psnr_reachable=cl.get("psnr_reachable"))
+        if cl:
+            row.update({k: v for k, v in target_cells(cl).items() if row.get(k) is None})
         if base.get("oracle"):
             best = max(base["oracle"], key=lambda r: r["iterations"])
             row.update({f"oracle_{_column(k)}": best[k] for k in ("psnr", "ssim", "deltaE")})

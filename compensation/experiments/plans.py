@@ -16,6 +16,7 @@ from pathlib import Path
 
 from compensation.experiments.jobs import (BaselineJob, FitJob, RenderJob, baselines, fit, render,
                                           result_row, tasks)
+from compensation.experiments.targets import TargetPolicy
 from compensation.training.config import TrainConfig
 from sim.dataset import FrameSpec
 from sim.errors import ProcamError
@@ -103,6 +104,8 @@ class Scoring:
     renders_required: bool = False
     """A setup that cannot be rendered stops everything before the first fit (a bench needs all
     its setups); otherwise its runs become failed rows."""
+    target: TargetPolicy = TargetPolicy()
+    """What the closed loop scores against (:mod:`~compensation.experiments.targets`)."""
 
 
 @dataclass(frozen=True)
@@ -145,7 +148,7 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
     def job(r: Run) -> FitJob:
         return FitJob(data_root / r.setup, r.cfg, out / r.run, closed_loop=scoring.closed_loop and r.scored,
                       official=out / "official" / r.setup if scoring.official and r.scored else None,
-                      pretrained=r.after is not None, progress=progress)
+                      pretrained=r.after is not None, progress=progress, target=scoring.target)
 
     fitted: dict[str, dict] = {}
     stages = [[r for r in plan.runs if r.run in {q.after for q in plan.runs}],
@@ -164,7 +167,8 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
         bases = []
         if stage is stages[-1]:
             bases = [BaselineJob(data_root / s, scoring.n_test, scoring.closed_loop,
-                                 out / "reachable" if scoring.masks else None, out / "baselines" / f"{s}.json")
+                                 out / "reachable" if scoring.masks else None, out / "baselines" / f"{s}.json",
+                                 scoring.target)
                      for s in ready]
         done = executor.run(tasks(fit, list(unique.values()), gpus) + tasks(baselines, bases, gpus))
         fitted.update({run: {"run": str(j.run_dir), **d} for (run, j), d in zip(unique.items(), done)})

@@ -25,12 +25,14 @@ import numpy as np
 import torch
 
 from compensation.data import load_setup_data, surface_path, to_tensor
+from compensation.experiments.targets import IDENTITY, TargetPolicy, map_record, map_targets
 from compensation.methods import check_config, get_method
 from compensation.methods.base import Method, load_state, resolve_device
 from compensation.scores.metrics import evaluate
 from compensation.training.config import TrainConfig
 from sim.errors import DatasetError, ProcamError
-from sim.io import atomic_write, read_json, read_png, to_uint8, write_json, write_png
+from sim.io import atomic_write, read_json, read_png, to_float, to_uint8, write_json, write_png
+from sim.layout import N_PLAIN, REF, capture_dir, image_name
 
 CHECKPOINT_FILE = "checkpoint.pt"
 """Training state of an unfinished run, inside its :func:`partial_dir`."""
@@ -351,3 +353,41 @@ def compensate(source: str | Path, desired: torch.Tensor, surface: torch.Tensor 
         raise ProcamError(f"desired images: {desired.shape[3]}x{desired.shape[2]} pixels; width and "
                           "height must be divisible by 4")
     return method.predict(desired.float(), surface.float(), batch_size=batch)
+
+
+def compensation_target(source: str | Path, desired: torch.Tensor,
+                        policy: TargetPolicy) -> tuple[torch.Tensor, dict]:
+    """The targets y' to compensate instead of ``desired`` y under ``policy``, from the captures of
+    the black and white plain frames of the dataset the run ``source`` was trained on, and their
+    record (:func:`~compensation.experiments.targets.map_record`).
+
+    Parameters
+    ----------
+    source : path-like
+        A run directory (a state dict file holds no dataset: only the policy ``none``).
+    desired : torch.Tensor
+        y, float32 (N, 3, H, W) in [0, 1], at the run's size.
+
+    Raises
+    ------
+    ProcamError
+        If the policy needs the dataset and ``source`` is a state dict file or its dataset is gone,
+        or no map keeps enough pixels in reach.
+    """
+    if policy.name == "none":
+        return desired, map_record(policy, [IDENTITY] * len(desired))
+    if Path(source).is_file():
+        raise ProcamError(f"{source}: a state dict file holds no dataset, whose black and white "
+                          f"captures the target policy {policy.name!r} needs; use --target-policy none")
+    ref = capture_dir(Path(read_run_config(source)["dataset"]), REF)
+    try:
+        black, white = (to_float(read_png(ref / image_name(i))).transpose(2, 0, 1) for i in (1, N_PLAIN))
+    except (OSError, ProcamError) as exc:
+        raise ProcamError(f"{ref}: the black and white captures the target policy {policy.name!r} "
+                          f"needs are not readable ({exc})") from None
+    if black.shape[1:] != tuple(desired.shape[2:]):
+        raise ProcamError(f"{ref}: captures of {black.shape[2]}x{black.shape[1]} pixels, desired images "
+                          f"of {desired.shape[3]}x{desired.shape[2]}")
+    target, record = map_targets(policy, desired.double().numpy(), black.astype(np.float64),
+                                 white.astype(np.float64))
+    return torch.from_numpy(target).float(), record

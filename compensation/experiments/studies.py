@@ -13,6 +13,8 @@ A study file (TOML; the shipped ones are ``scenes/studies/*.toml``)::
     profile = "quick"               # training profile, optional
     render_seeds = false            # optional: true renders every seed's own dataset too
     only = ["light1_*"]             # optional: setup-name patterns or point numbers to run (as --only)
+    target_policy = "global"        # optional: what the closed loop scores against: none, global, image
+    out_of_reach = 0.01             # optional: share of pixels a global or image target may leave out
 
     [setup]                         # optional: partial setup values applied to every point
     projector = { focus_distance = 0.8 }
@@ -58,6 +60,7 @@ from pathlib import Path
 from compensation.experiments.executors import LocalExecutor
 from compensation.experiments.jobs import write_results, write_study_record
 from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name, slug
+from compensation.experiments.targets import DEFAULT_OUT_OF_REACH, TargetPolicy
 from compensation.methods import applicable, get_method, make_config, option_owners
 from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
@@ -66,7 +69,7 @@ from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
 from sim.setup.schema import SECTIONS
 
 STUDY_KEYS = ("name", "question", "base", "methods", "seeds", "n_train", "n_test", "size", "profile",
-              "render_seeds", "only", "setup", "options", "axis")
+              "render_seeds", "only", "target_policy", "out_of_reach", "setup", "options", "axis")
 """Keys of a study file."""
 AXIS_KEYS = ("key", "values", "label", "unit")
 """Keys of an ``[[axis]]`` table."""
@@ -115,6 +118,8 @@ class Study:
     """Training options of every run whose method takes them."""
     only: tuple[str, ...] = ()
     """Point numbers or setup-name patterns to run (``--only``); empty: all."""
+    target: TargetPolicy = TargetPolicy()
+    """What the closed loop scores against (``target_policy``, ``out_of_reach``)."""
     overrides: dict = field(default_factory=dict)
     """What the command line changed (recorded in ``study.json``)."""
 
@@ -227,6 +232,10 @@ def load_study(path: Path | str) -> Study:
     only = data.get("only", [])
     if not isinstance(only, list) or not all(isinstance(o, str) and o.strip() for o in only):
         raise _error(path, "only", only, "expected a list of setup-name patterns or point numbers")
+    try:
+        target = TargetPolicy(data.get("target_policy", "global"), data.get("out_of_reach", DEFAULT_OUT_OF_REACH))
+    except ProcamError as exc:
+        raise ProcamError(f"{path}: {exc}") from None
     return Study(
         path=path, name=data.get("name", path.stem), question=data.get("question", ""),
         base=data["base"], axes=axes, methods=tuple(methods), seeds=tuple(seeds),
@@ -234,15 +243,17 @@ def load_study(path: Path | str) -> Study:
         n_test=_positive_ints(path, "n_test", data.get("n_test", defaults["n_test"]), False)[0],
         size=_size(path, data.get("size", defaults["size"])), profile=profile,
         render_seeds=data.get("render_seeds", False), setup=dict(fixed), options=dict(options),
-        only=tuple(o.strip() for o in only))
+        only=tuple(o.strip() for o in only), target=target)
 
 
 def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: tuple[int, ...] | None = None,
                    n_test: int | None = None, iters: int | None = None, seeds: int | None = None,
-                   methods: tuple[str, ...] | None = None, only: tuple[str, ...] | None = None) -> Study:
-    """The study with the command line's smoke-run overrides (None: unchanged), recorded in
+                   methods: tuple[str, ...] | None = None, only: tuple[str, ...] | None = None,
+                   target_policy: str | None = None, out_of_reach: float | None = None) -> Study:
+    """The study with the command line's overrides (None: unchanged), recorded in
     :attr:`Study.overrides`. ``n_train`` and ``iters`` replace the values of an axis on that key;
-    ``seeds`` N takes the seeds 0 … N-1.
+    ``seeds`` N takes the seeds 0 … N-1; ``target_policy`` and ``out_of_reach`` replace the study
+    file's.
 
     Raises
     ------
@@ -250,7 +261,7 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
         If a method is unknown or a value is not positive.
     """
     given = {"size": size, "n_train": n_train, "n_test": n_test, "iters": iters, "seeds": seeds,
-             "methods": methods, "only": only}
+             "methods": methods, "only": only, "target_policy": target_policy, "out_of_reach": out_of_reach}
     given = {k: v for k, v in given.items() if v is not None}
     changes: dict = {}
     axes = list(study.axes)
@@ -277,6 +288,9 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
         changes["methods"] = tuple(methods)
     if only is not None:
         changes["only"] = tuple(only)
+    if target_policy is not None or out_of_reach is not None:
+        changes["target"] = TargetPolicy(target_policy or study.target.name,
+                                         study.target.out_of_reach if out_of_reach is None else out_of_reach)
     return replace(study, axes=tuple(axes), overrides={**study.overrides, **given}, **changes)
 
 
@@ -396,7 +410,8 @@ def study_record(study: Study, plan: Plan, kind: str = "study") -> dict:
                      for a in study.axes],
             "methods": list(study.methods), "seeds": list(study.seeds), "n_train": sizes,
             "n_test": study.n_test, "size": list(study.size), "profile": study.profile,
-            "render_seeds": study.render_seeds, "only": list(study.only), "setup_values": study.setup,
+            "render_seeds": study.render_seeds, "only": list(study.only), "target": study.target.record(),
+            "setup_values": study.setup,
             "options": study.options,
             "overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in study.overrides.items()},
             "study_file": str(study.path.resolve()),
@@ -436,7 +451,7 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     record = study_record(study, plan)
     write_study_record(out, {**record, "executor": executor.name})
     spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size)
-    outcome = execute(plan, out, out / "data", spec, Scoring(study.n_test), executor,
+    outcome = execute(plan, out, out / "data", spec, Scoring(study.n_test, target=study.target), executor,
                       list(plan.setups), progress)
     rows = result_rows(plan, outcome, out)
     results = write_results(out, [a.key for a in study.axes], rows)

@@ -396,6 +396,27 @@ def _provenance(folder: Path, study: dict, rows: list[dict]) -> str:
     return "".join(parts)
 
 
+def target_sentence(study: dict, rows: list[dict]) -> str:
+    """What the folder's closed-loop scores compare with: its target policy and map.
+
+    >>> target_sentence({"target": {"policy": "global", "out_of_reach": 0.01}},
+    ...                 [{"target_a": 0.5, "target_b": 0.1}, {"target_a": 0.7, "target_b": 0.1}])
+    "Closed-loop scores compare each capture with the target y' = a·y + b of the target policy global (at most 1 % of the pixels out of reach; a = 0.6000, b = 0.1000, mean over the rows)."
+    """
+    target = study.get("target") or {}
+    if not target or target.get("policy") == "none":
+        return "Closed-loop scores compare each capture with the desired image itself (target policy none)."
+    a = [r["target_a"] for r in rows if is_finite(r.get("target_a", math.nan))]
+    b = [r["target_b"] for r in rows if is_finite(r.get("target_b", math.nan))]
+    used = [r["target_out_of_reach_used"] for r in rows if is_finite(r.get("target_out_of_reach_used", math.nan))]
+    shown = f"; a = {np.mean(a):.4f}, b = {np.mean(b):.4f}, mean over the rows" if a and b else ""
+    if used and max(used) > target["out_of_reach"] + 1e-9:
+        shown += f"; up to {100 * max(used):.3g} % used where no less leaves any contrast"
+    return (f"Closed-loop scores compare each capture with the target y' = a·y + b of the target policy "
+            f"{target['policy']} (at most {100 * target['out_of_reach']:g} % of the pixels out of reach"
+            f"{shown}).")
+
+
 def build_report(folder: Path) -> Path:
     """Write ``folder/report.html`` (and the summaries and charts it shows) for a study or bench
     folder; see the module's description.
@@ -423,6 +444,7 @@ def build_report(folder: Path) -> Path:
     body = [f"<h1>{html.escape(str(name))}</h1>"]
     if study.get("question"):
         body.append(f"<p><b>Question:</b> {html.escape(str(study['question']))}</p>")
+    body.append(f"<p>{html.escape(target_sentence(study, rows))}</p>")
     body.append(f'<p class="note">{study.get("kind", "study")} folder {html.escape(str(folder.resolve()))}; '
                 f"{len(rows)} runs, {len({r['point'] for r in rows})} point(s), "
                 f"{len({r['method'] for r in rows})} method(s); {len(fails)} failure(s).</p>")

@@ -31,8 +31,10 @@ METRICS = ("psnr", "rmse", "ssim", "deltae")
 closed loop and for the uncompensated captures."""
 SCORES = (*METRICS, *(f"cl_{m}" for m in METRICS), *(f"unc_{m}" for m in METRICS),
           "cl_unc_psnr", "cl_unc_ssim", "cl_unc_deltae", "oracle_psnr", "oracle_ssim", "oracle_deltae",
-          "fit_s", "infer_ms")
-"""The numeric columns of ``results.csv`` (empty cells read as NaN)."""
+          "fit_s", "infer_ms", "reachable_fraction", "target_out_of_reach", "target_out_of_reach_used",
+          "target_a", "target_b")
+"""The numeric columns of ``results.csv`` (empty cells read as NaN); closed-loop scores compare with
+the target y' = ``target_a`` · y + ``target_b`` of the row's ``target_policy``."""
 STATUSES = ("ok", "failed", "nan", "diverged")
 """Values of the ``status`` column: finished; raised an error (``error`` says which); a score is not
 finite; the training loss grew (:data:`compensation.experiments.jobs.DIVERGED_RATIO`) or is not
@@ -129,7 +131,7 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
                               f"{', '.join(STATUSES)}")
         for key in (*SCORES, *(a for a in axes if a not in ("point", "n_train", "seed"))):
             row[key] = _number(raw.get(key) or "")
-        for key in ("error", "run", "table", "variant"):
+        for key in ("error", "run", "table", "variant", "target_policy"):
             row[key] = raw.get(key) or ""
         rows.append(row)
     return rows
