@@ -12,13 +12,20 @@ from compensation.data import load_setup_data
 from compensation.experiments.closed_loop import closed_loop, simulator_for
 from compensation.methods import METHODS, applicable, make_config
 from compensation.experiments.runs import load_run, train_run
+from compensation.experiments.targets import TargetPolicy
 from sim.dataset import FrameSpec, write_setup
 from sim.io import read_json, read_png, write_png
 
 SIZES = {"square": (48, 48), "wide": (48, 32)}
 """Canonical (width, height) views of one setup."""
-SMALL = dict(n_train=16, n_test=4, iters=40, batch=8, device="cpu")
+SMALL = dict(n_train=16, n_test=4, iters=100, batch=8, device="cpu")
 """A budget of seconds per method (options a method does not take are dropped)."""
+NETWORK_SEEDS = (0, 1, 2)
+"""A network's gain is the median over these training seeds: at this budget one start in a few
+ends with dead units and no gain (seed 0 of CompenNet at 48x32: loss stuck at 0.70, the other
+seeds +4.0 to +4.2 dB surrogate), which says nothing about width and height."""
+AS_IS = TargetPolicy("none")
+"""The closed loop against the desired images themselves (the gains compare views of one setup)."""
 SAME_GAIN_DB = 1.5
 """How far the non-square gain over uncompensated may fall below the square one (surrogate and
 closed loop). Measured differences: at most 0.5 dB at 48x32 (0.7 dB at 64x48). Before
@@ -39,16 +46,20 @@ def gains(tmp_path_factory):
         data = load_setup_data(setup_dir)
         assert data.size == (size[1], size[0])  # tensors are (H, W)
         sim = simulator_for(setup_dir)
-        plain = closed_loop(_Identity(), data, sim)["psnr"]
+        plain = closed_loop(_Identity(), data, sim, policy=AS_IS)["psnr"]
         out[view] = {"dir": setup_dir, "runs": {}}
         for name in sorted(METHODS):
-            run = root / "runs" / name
-            metrics = train_run(setup_dir, make_config("quick", name, **applicable(name, SMALL)), run,
-                                progress=False)
-            method, _ = load_run(run)
-            out[view][name] = (metrics["psnr"] - metrics["uncompensated"]["psnr"],
-                               closed_loop(method, data, sim)["psnr"] - plain)
-            out[view]["runs"][name] = run
+            seeds = NETWORK_SEEDS if "iters" in applicable(name, SMALL) else (0,)
+            found = []
+            for seed in seeds:
+                run = root / "runs" / f"{name}-seed{seed}"
+                cfg = make_config("quick", name, **applicable(name, {**SMALL, "seed": seed}))
+                metrics = train_run(setup_dir, cfg, run, progress=False)
+                method, _ = load_run(run)
+                found.append((metrics["psnr"] - metrics["uncompensated"]["psnr"],
+                              closed_loop(method, data, sim, policy=AS_IS)["psnr"] - plain))
+            out[view][name] = tuple(float(np.median(g)) for g in zip(*found))
+            out[view]["runs"][name] = root / "runs" / f"{name}-seed0"
     return out
 
 
@@ -70,10 +81,11 @@ def test_same_gain_as_the_square_view(gains, name):
 @pytest.mark.slow
 def test_every_method_gains_on_the_wide_view(gains):
     """Not only equal: the per-pixel methods and CompenNet compensate at 48x32. Measured
-    (surrogate / closed-loop dB): TPS +10.9 / +1.9, TPS textured +9.3 / +1.8, Nayar +11.2 / +2.0,
-    CompenNet +2.2 / 0.0 after 40 iterations; most of this surface's desired pixels are out of the
-    projector's reach, which bounds every closed-loop gain. pix2pix, with a budget of seconds, does
-    not beat uncompensated (−1.5 dB) and is only required to match its square self above."""
+    (surrogate dB): TPS +10.9, TPS textured +9.3, Nayar +11.2 (closed loop +1.8 to +2.0);
+    CompenNet +4.0 to +4.2 after 100 iterations (median of its seeds); most of this surface's
+    desired pixels are out of the projector's reach, which bounds every closed-loop gain. pix2pix,
+    with a budget of seconds, does not beat uncompensated and is only required to match its square
+    self above."""
     for name in ("tps", "tps-textured", "nayar"):
         assert gains["wide"][name][0] > 7.0 and gains["wide"][name][1] > 1.0, (name, gains["wide"][name])
     for name in ("compennet", "compennet-nosurf"):
