@@ -67,8 +67,9 @@ class SetupData:
         The setup folder ``DATA_ROOT/<setup>``.
     train, test : PairSet
         Training and test pairs (the first ``n_train`` / ``n_test`` of the dataset).
-    ref : PairSet
-        The 125 plain colour frames and their captures (TPS samples).
+    ref : PairSet or None
+        The 125 plain colour frames and their captures (the samples of TPS and Nayar); None
+        where the dataset root holds no ``ref`` frames (the official code never reads them).
     surface : torch.Tensor
         Surface image s̃, float32 (1, 3, H, W) in [0, 1].
     """
@@ -77,7 +78,7 @@ class SetupData:
     setup_dir: Path
     train: PairSet
     test: PairSet
-    ref: PairSet
+    ref: PairSet | None
     surface: torch.Tensor
 
     @property
@@ -247,9 +248,10 @@ def load_setup_data(setup_dir: str | os.PathLike, n_train: int | None = None,
     Raises
     ------
     DatasetError
-        If the setup is missing or unfinished, a capture or frame is missing, more pairs are asked
-        for than exist, images differ in size, or the size is not divisible by 4. The message
-        names the path and what is missing or mismatched.
+        If the setup is missing or unfinished, a capture or frame is missing (of the plain
+        colours too, unless the root holds none: then ``ref`` is None), more pairs are asked for
+        than exist, images differ in size, or the size is not divisible by 4. The message names
+        the path and what is missing or mismatched.
     """
     setup_dir = Path(setup_dir)
     meta = check_finished(setup_dir)
@@ -269,9 +271,10 @@ def load_setup_data(setup_dir: str | os.PathLike, n_train: int | None = None,
     ref_frames = image_indices(root / REF)
     ref_captures = image_indices(capture_dir(setup_dir, REF))
     plain = set(range(1, N_PLAIN + 1))
+    with_ref = bool(ref_frames & plain)  # no plain frames at all: a root without ref/ (optional)
     for folder, present in ((root / REF, ref_frames),
                             (capture_dir(setup_dir, REF), ref_captures)):
-        if missing := plain - present:
+        if with_ref and (missing := plain - present):
             raise DatasetError(f"{folder}: {len(present & plain)} of the {N_PLAIN} plain colour "
                                f"images; missing {_names(missing)}")
 
@@ -290,4 +293,4 @@ def load_setup_data(setup_dir: str | os.PathLike, n_train: int | None = None,
 
     return SetupData(name=setup_name(setup_dir), setup_dir=setup_dir,
                      train=pairs(TRAIN, counts[TRAIN]), test=pairs(TEST, counts[TEST]),
-                     ref=pairs(REF, N_PLAIN), surface=to_tensor(surface[None]))
+                     ref=pairs(REF, N_PLAIN) if with_ref else None, surface=to_tensor(surface[None]))

@@ -173,3 +173,29 @@ def test_unreadable_meta(fresh):
     (fresh / "meta.json").write_text("[1, 2]")
     with pytest.raises(DatasetError, match=re.escape(f"{fresh / 'meta.json'}: expected a JSON object")):
         load_setup_data(fresh)
+
+
+def test_a_root_without_ref_frames_loads_and_tps_says_what_it_needs(tmp_path):
+    """ROOT/ref (the plain colours' projector frames) is optional, as for the official code:
+    CompenNet trains without it, TPS and Nayar refuse naming what they need."""
+    from compensation.experiments.runs import train_run
+    from compensation.methods import make_config
+    from sim.errors import ProcamError
+
+    setup = make_dataset(tmp_path, name="light2/pos1/curves", official=True, n_train=8, n_test=2)
+    for f in (tmp_path / "ref").glob("img_0*.png"):
+        f.unlink()
+    data = load_setup_data(setup)
+    assert data.ref is None and len(data.train) == 8 and data.surface.shape[0] == 1
+    metrics = train_run(setup, make_config("quick", "compennet", iters=2, batch=2, device="cpu", n_train=8,
+                                           n_test=2),
+                        tmp_path / "run", progress=False)
+    assert np.isfinite(metrics["psnr"])
+    for method in ("tps", "nayar"):
+        with pytest.raises(ProcamError, match=re.escape(f"{setup}: {method} fits the 125 plain colours, "
+                                                        "but the dataset root holds no ref/img_0001.png")):
+            train_run(setup, make_config("quick", method, device="cpu", n_train=8, n_test=2), tmp_path / method,
+                      progress=False)
+    write_png(tmp_path / "ref" / "img_0001.png", np.zeros((4, 4, 3), np.uint8))  # some but not all: an error
+    with pytest.raises(DatasetError, match="1 of the 125 plain colour images; missing"):
+        load_setup_data(setup)

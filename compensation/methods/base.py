@@ -13,7 +13,7 @@ import pickle
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -22,8 +22,7 @@ from compensation.training.config import Options, TrainConfig
 from compensation.training.loop import LoopResult
 from sim.errors import ProcamError
 
-if TYPE_CHECKING:
-    from compensation.data import SetupData
+from compensation.data import N_PLAIN, PairSet, SetupData
 
 CHECKPOINT = "model.pt"
 """File name of a run's weights: a plain state dict (tensors only)."""
@@ -177,6 +176,21 @@ class FitResult:
         step returned (loss, learning rate, …)."""
         return cls(result.seconds, result.samples_per_second, result.final_loss, result.batch,
                    [(i + 1, v[0], v[1]) for i, v in enumerate(result.values)], extra)
+
+
+def plain_colour_pairs(data: SetupData, method: str) -> PairSet:
+    """The 125 plain-colour pairs a method fits (TPS, Nayar).
+
+    Raises
+    ------
+    ProcamError
+        If the dataset root holds no ``ref`` frames (they are optional: CompenNet does without).
+    """
+    if data.ref is None:
+        raise ProcamError(f"{data.setup_dir}: {method} fits the {N_PLAIN} plain colours, but the dataset "
+                          f"root holds no ref/img_0001.png … img_{N_PLAIN:04d}.png (projector frames of "
+                          "the plain colours; the official code does not need them, TPS and Nayar do)")
+    return PairSet(data.ref.captures[:N_PLAIN], data.ref.frames[:N_PLAIN])
 
 
 class Method(abc.ABC):

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from compensation.data import N_PLAIN
-from compensation.methods.base import FitResult, Method, load_arrays, resolve_device
+from compensation.methods.base import FitResult, Method, load_arrays, plain_colour_pairs, resolve_device
 from compensation.methods.tps import pixel_samples
 from compensation.training.config import NoOptions, TrainConfig
 from sim.errors import ProcamError
@@ -247,7 +247,8 @@ class NayarMethod(Method):
             units), ``batch`` 125, ``extra["gamma"]`` the three exponents.
         """
         self.device = resolve_device(cfg.device)
-        captures, frames = data.ref.captures[:N_PLAIN], data.ref.frames[:N_PLAIN]
+        pairs = plain_colour_pairs(data, self.name)
+        captures, frames = pairs.captures, pairs.frames
         start = time.perf_counter()
         gamma = estimate_gamma(captures, frames)
         linear = torch.from_numpy(pixel_samples(frames)).double().pow(torch.from_numpy(gamma))

@@ -92,8 +92,8 @@ from scipy.linalg import lapack, lstsq
 from scipy.spatial.distance import cdist
 from tqdm import tqdm
 
-from compensation.data import N_PLAIN, PairSet
-from compensation.methods.base import FitResult, Method, load_arrays, resolve_device
+from compensation.data import PairSet
+from compensation.methods.base import FitResult, Method, load_arrays, plain_colour_pairs, resolve_device
 from compensation.training.config import Options, TrainConfig
 from sim.cores import usable_cores
 from sim.errors import ProcamError
@@ -398,7 +398,7 @@ class TPSMethod(Method):
 
     def training_pairs(self, data: SetupData, cfg: TrainConfig) -> PairSet:
         """The sample pairs of every pixel's spline: the 125 plain colours (not the gray frame)."""
-        return PairSet(data.ref.captures[:N_PLAIN], data.ref.frames[:N_PLAIN])
+        return plain_colour_pairs(data, self.name)
 
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
             checkpoint: Path | None = None) -> FitResult:
