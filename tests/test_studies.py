@@ -204,6 +204,17 @@ def test_study_folder(tiny):
         captures = sorted(p.name for p in (run / "closed_loop").iterdir())
         assert captures == [f"img_{i:04d}.png" for i in range(1, 5)]
         assert iio.imread(run / "closed_loop" / "img_0001.png").shape == (32, 32, 3)
+        assert r["undertrained"] == "0"  # tps and nayar log no falling loss
+    # per_image.csv: every run's 4 test images, each score the PSNR of that image alone
+    images = csv_rows(out / "per_image.csv")
+    assert [(i["point"], i["method"], i["image"]) for i in images] == [
+        (p, m, str(k)) for p in ("0", "1") for m in ("tps", "nayar") for k in range(1, 5)]
+    for r in rows:
+        mine = [i for i in images if (i["point"], i["method"]) == (r["point"], r["method"])]
+        for key in ("psnr", "cl_psnr", "cl_unc_psnr", "oracle_psnr"):
+            values = [float(i[key]) for i in mine]
+            # the PSNR of the mean squared error lies between the images' PSNRs
+            assert min(values) - 1e-3 <= float(r[key]) <= max(values) + 1e-3, (key, r, values)
     # the axis reached the renders: the capture of the black frame is lit by the ambient light alone
     black = {r["ambient.radiance"]: iio.imread(out / "data" / r["setup"] / "cam" / "warp" / "ref" / "img_0001.png")
              for r in rows}

@@ -21,7 +21,7 @@ import torch
 
 from compensation.data import SetupData
 from compensation.experiments.targets import IDENTITY, TargetPolicy, map_record, map_targets
-from compensation.scores.metrics import evaluate, masked_scores, psnr_from_mse
+from compensation.scores.metrics import evaluate, masked_scores, psnr_per_image
 from sim import seeds
 from sim.capture import Simulator
 from sim.dataset import canonical_size
@@ -170,10 +170,9 @@ def closed_loop_scores(captured: torch.Tensor, y: torch.Tensor, mask: torch.Tens
     ``psnr_reachable``/``rmse_reachable`` over the reachable ones (``mask``, bool (N, H, W)),
     ``reachable_fraction`` and ``psnr_per_image`` (each image's PSNR, for confidence intervals)."""
     reach = masked_scores(captured, y, mask)
-    per_image = ((captured.double() - y.double()) ** 2).mean(dim=(1, 2, 3))
     return {**evaluate(captured, y, batch_size=batch_size), "psnr_reachable": reach["psnr"],
             "rmse_reachable": reach["rmse"], "reachable_fraction": float(mask.float().mean()),
-            "psnr_per_image": [round(psnr_from_mse(float(m)), 4) for m in per_image]}
+            "psnr_per_image": psnr_per_image(captured, y)}
 
 
 def closed_loop(method, data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,

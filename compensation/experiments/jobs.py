@@ -10,7 +10,7 @@ Each job is a module-level function of one frozen dataclass, so that any executo
 - :func:`baselines` (:class:`BaselineJob`): a setup's method-free scores: the test captures
   against the desired images and, in closed loop, the iterative-refinement oracle.
 
-Records: ``results.csv`` (:func:`result_row`, :func:`write_results`) and ``study.json``
+Records: ``results.csv`` and ``per_image.csv`` (:func:`result_row`, :func:`write_results`) and ``study.json``
 (:func:`write_study_record`).
 """
 from __future__ import annotations
@@ -46,6 +46,13 @@ from sim.setup import Setup
 
 DIVERGED_RATIO = 1.5
 """A run whose last logged training loss exceeds this multiple of its first has diverged."""
+UNDERTRAINED_WINDOW = 0.1
+"""Share of a run's logged training iterations in each of the two last windows that
+:func:`still_falling` compares."""
+UNDERTRAINED_TOLERANCE = 0.01
+"""A run is undertrained where its mean training loss over the last :data:`UNDERTRAINED_WINDOW`
+of the logged iterations is below the mean over the window before by more than this share of it
+(:func:`still_falling`)."""
 SCORES = ("psnr", "rmse", "ssim", "deltaE")
 """Scores of a run (:func:`~compensation.scores.metrics.evaluate`), in column order."""
 
@@ -60,9 +67,10 @@ RESULT_COLUMNS = (
     *(f"unc_{_column(s)}" for s in SCORES), "cl_unc_psnr", "cl_unc_ssim", "cl_unc_deltae",
     "oracle_psnr", "oracle_ssim", "oracle_deltae", "fit_s", "infer_ms", "run",
     "cl_psnr_reachable", "cl_unc_psnr_reachable", "reachable_fraction", "target_policy",
-    "target_out_of_reach", "target_out_of_reach_used", "target_a", "target_b")
+    "target_out_of_reach", "target_out_of_reach_used", "target_a", "target_b", "undertrained")
 """Columns of ``results.csv`` after ``point`` and the axis columns (an axis on ``n_train`` is the
-``n_train`` column itself); a bench adds ``table`` and ``variant``. The ``cl_`` and ``oracle_``
+``n_train`` column itself); a bench adds ``table`` and ``variant``. ``undertrained`` is 1 where the
+run's training loss was still falling at its end (:func:`still_falling`), else 0. The ``cl_`` and ``oracle_``
 scores compare with the target y' of ``target_policy`` (map y' = ``target_a`` · y + ``target_b``,
 the mean over the images for the ``image`` policy; ``target_out_of_reach_used``: the share of pixels
 the map was allowed to leave out, above the policy's where that admits no contrast);
@@ -286,12 +294,42 @@ def baselines(job: BaselineJob) -> dict:
 
 def _loss_grew(run_dir: Path) -> bool:
     """Whether the run's logged training loss ended above :data:`DIVERGED_RATIO` times its start."""
+    losses = _losses(run_dir)
+    return len(losses) > 1 and losses[-1] > DIVERGED_RATIO * losses[0]
+
+
+PER_IMAGE_SCORES = ("psnr", "cl_psnr", "cl_unc_psnr", "oracle_psnr")
+"""Per test image scores of ``per_image.csv`` (dB): surrogate, closed loop, uncompensated closed loop
+and the oracle's (its most corrections), each against the same image as in ``results.csv``."""
+
+
+def still_falling(losses: Sequence[float], window: float = UNDERTRAINED_WINDOW,
+                  tolerance: float = UNDERTRAINED_TOLERANCE) -> bool:
+    """Whether a training loss curve was still falling at its end: the mean of its last ``window``
+    share of values (at least one) is below the mean of the ``window`` before it by more than
+    ``tolerance`` times that mean. Curves of fewer than two values never are.
+
+    >>> still_falling([1.0] * 10 + [0.9] * 10)
+    False
+    >>> still_falling([1.0 - 0.01 * i for i in range(20)])
+    True
+    >>> still_falling([1.0, 0.5, 0.3] + [0.2] * 17)
+    False
+    """
+    n = max(1, int(len(losses) * window))
+    if len(losses) < 2 * n:
+        return False
+    last, before = sum(losses[-n:]) / n, sum(losses[-2 * n:-n]) / n
+    return last < before * (1 - tolerance)
+
+
+def _losses(run_dir: Path) -> list[float]:
+    """The run's logged training losses (``loss.csv``), empty where it has none or is unreadable."""
     try:
         with open(run_dir / "loss.csv", newline="") as f:
-            losses = [float(r["loss"]) for r in csv.DictReader(f)]
+            return [float(r["loss"]) for r in csv.DictReader(f)]
     except (OSError, KeyError, ValueError):
-        return False
-    return len(losses) > 1 and losses[-1] > DIVERGED_RATIO * losses[0]
+        return []
 
 
 def run_status(metrics: dict, run_dir: Path) -> tuple[str, str]:
@@ -327,6 +365,9 @@ def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
     """The ``results.csv`` cells of one run (all but ``point``, the axes, ``setup``, ``method``,
     ``n_train`` and ``seed``, which the caller knows).
 
+    ``per_image`` holds the per-image scores the run and its baselines kept, by name of
+    :data:`PER_IMAGE_SCORES` (:func:`per_image_rows`; not a ``results.csv`` column).
+
     Parameters
     ----------
     fitted : dict
@@ -338,6 +379,7 @@ def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
         The study folder (``run`` is written relative to it).
     """
     row: dict = {}
+    per_image: dict = {}
     if fitted.get("ok"):
         metrics, run_dir = fitted["metrics"], Path(fitted["run"])
         row["status"], row["error"] = run_status(metrics, run_dir)
@@ -348,6 +390,8 @@ def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
                    cl_psnr_reachable=cl.get("psnr_reachable"), **target_cells(cl))
         row.update({f"unc_{_column(k)}": metrics["uncompensated"][k] for k in SCORES})
         row["run"] = os.path.relpath(run_dir, out)
+        row["undertrained"] = int(still_falling(_losses(run_dir)))
+        per_image.update(psnr=metrics.get("psnr_per_image"), cl_psnr=cl.get("psnr_per_image"))
     else:
         row["status"], row["error"] = "failed", fitted.get("error", "not run")
         if "run" in fitted:
@@ -358,11 +402,14 @@ def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
         cl = unc.get("closed_loop", {})
         row.update({f"cl_unc_{_column(k)}": cl.get(k) for k in ("psnr", "ssim", "deltaE")},
                    cl_unc_psnr_reachable=cl.get("psnr_reachable"))
+        per_image["cl_unc_psnr"] = cl.get("psnr_per_image")
         if cl:
             row.update({k: v for k, v in target_cells(cl).items() if row.get(k) is None})
         if base.get("oracle"):
             best = max(base["oracle"], key=lambda r: r["iterations"])
             row.update({f"oracle_{_column(k)}": best[k] for k in ("psnr", "ssim", "deltaE")})
+            per_image["oracle_psnr"] = best.get("psnr_per_image")
+    row["per_image"] = {k: v for k, v in per_image.items() if v}
     return row
 
 
@@ -377,17 +424,44 @@ def _cell(value) -> str:
     return str(value)
 
 
-def write_results(out: Path, axis_keys: Sequence[str], rows: Sequence[dict],
-                  extra: Sequence[str] = ()) -> Path:
-    """Write ``out/results.csv``: ``point``, one column per axis key (but ``n_train``, which has
-    its own), :data:`RESULT_COLUMNS`, then ``extra``; missing values are empty cells."""
-    header = ["point", *(k for k in axis_keys if k not in RESULT_COLUMNS), *RESULT_COLUMNS, *extra]
+def per_image_rows(rows: Sequence[dict], keys: Sequence[str]) -> list[dict]:
+    """One row per run and test image: the run's ``keys`` cells, ``image`` (1-based) and its
+    :data:`PER_IMAGE_SCORES` (None where not kept), from each row's ``per_image``
+    (:func:`result_row`); runs without per-image scores give none.
+
+    >>> per_image_rows([{"point": 0, "per_image": {"cl_psnr": [20.0, 21.0], "oracle_psnr": [22.0]}},
+    ...                 {"point": 1}], ["point"])[1]
+    {'point': 0, 'image': 2, 'psnr': None, 'cl_psnr': 21.0, 'cl_unc_psnr': None, 'oracle_psnr': None}
+    """
+    out = []
+    for row in rows:
+        scores = row.get("per_image") or {}
+        for i in range(max((len(v) for v in scores.values()), default=0)):
+            out.append({**{k: row.get(k) for k in keys}, "image": i + 1,
+                        **{k: scores[k][i] if i < len(scores.get(k) or ()) else None
+                           for k in PER_IMAGE_SCORES}})
+    return out
+
+
+def _write_table(path: Path, header: Sequence[str], rows: Sequence[dict]) -> Path:
     text = io.StringIO(newline="")
     writer = csv.writer(text)
     writer.writerow(header)
     writer.writerows([_cell(row.get(k)) for k in header] for row in rows)
-    atomic_write(out / "results.csv", text.getvalue())
-    return out / "results.csv"
+    atomic_write(path, text.getvalue())
+    return path
+
+
+def write_results(out: Path, axis_keys: Sequence[str], rows: Sequence[dict],
+                  extra: Sequence[str] = ()) -> Path:
+    """Write ``out/results.csv``: ``point``, one column per axis key (but ``n_train``, which has
+    its own), :data:`RESULT_COLUMNS`, then ``extra``; missing values are empty cells. Beside it
+    ``out/per_image.csv`` (:func:`per_image_rows`): ``point``, the axis columns, ``setup``,
+    ``method``, ``n_train``, ``seed``, ``extra``, ``image`` and :data:`PER_IMAGE_SCORES`."""
+    axes = [k for k in axis_keys if k not in RESULT_COLUMNS]
+    keys = ["point", *axes, "setup", "method", "n_train", "seed", *extra]
+    _write_table(out / "per_image.csv", [*keys, "image", *PER_IMAGE_SCORES], per_image_rows(rows, keys))
+    return _write_table(out / "results.csv", ["point", *axes, *RESULT_COLUMNS, *extra], rows)
 
 
 def versions() -> dict:

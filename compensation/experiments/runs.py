@@ -9,7 +9,8 @@ A run directory holds::
     loss.png       the loss curve
     model.pt       network weights: a plain state dict (loaded with weights_only=True), or the
                    method's own state file (``tps.npz``, ``nayar.npz``)
-    metrics.json   test PSNR / RMSE / SSIM / ΔE of π†(x̃) vs x on all test pairs, and uncompensated
+    metrics.json   test PSNR / RMSE / SSIM / ΔE of π†(x̃) vs x on all test pairs (and each pair's
+                   PSNR), and uncompensated
     examples.png   rows of s̃, x̃, π†(x̃), x for a few test pairs
 """
 from __future__ import annotations
@@ -28,7 +29,7 @@ from compensation.data import load_setup_data, surface_path, to_tensor
 from compensation.experiments.targets import IDENTITY, TargetPolicy, map_record, map_targets
 from compensation.methods import check_config, get_method
 from compensation.methods.base import Method, load_state, resolve_device
-from compensation.scores.metrics import evaluate
+from compensation.scores.metrics import evaluate, psnr_per_image
 from compensation.training.config import TrainConfig
 from sim.errors import DatasetError, ProcamError
 from sim.io import atomic_write, read_json, read_png, to_float, to_uint8, write_json, write_png
@@ -175,7 +176,8 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
     -------
     dict
         The contents of ``metrics.json``: ``method``, ``setup``, ``psnr`` (dB), ``rmse``,
-        ``ssim``, ``deltaE`` of π†(x̃) vs x, ``ssim_convention``, ``uncompensated`` (the same
+        ``ssim``, ``deltaE`` of π†(x̃) vs x, ``ssim_convention``, ``psnr_per_image`` (each test
+        pair's PSNR), ``uncompensated`` (the same
         scores for x̃ vs x), ``train_seconds``,
         ``samples_per_second``, ``final_loss``, ``n_train``, ``n_test``, ``iters``, ``batch``.
 
@@ -213,6 +215,7 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
     plain = evaluate(data.test.captures, data.test.frames, cfg.eval_batch, SSIM_CONVENTION)
     metrics = {"method": cfg.method, "setup": data.name,
                **{k: float(scores[k]) for k in SCORES}, "ssim_convention": SSIM_CONVENTION,
+               "psnr_per_image": psnr_per_image(predicted, data.test.frames),
                "uncompensated": {k: float(plain[k]) for k in SCORES},
                "train_seconds": round(stats.seconds, 3),
                "samples_per_second": round(stats.samples_per_second, 3),
