@@ -234,6 +234,35 @@ def add_train(sub) -> None:
     p.set_defaults(func=cmd_train)
 
 
+def _compensate_outputs(out: Path, desired: list[str], names: list[str], inputs: list[str]) -> list[Path]:
+    """The files ``procam compensate`` writes: ``out`` itself for one desired image and a ``.png``
+    name, else ``out/<name>.png`` per image.
+
+    Raises
+    ------
+    ProcamError
+        Before anything is read or written: if an output would replace one of the inputs (a
+        desired image, the surface, the run or checkpoint), ``out`` names a file of another image
+        type for one image, or ``out`` is an existing file for several.
+    """
+    if len(desired) == 1 and out.suffix.lower() == ".png":
+        targets = [out]
+    elif len(desired) == 1 and out.suffix and not out.is_dir():
+        raise ProcamError(f"--out {out}: the projector frame is written as PNG; name it .png, or give "
+                          "a folder")
+    elif out.is_file():
+        raise ProcamError(f"--out {out}: an existing file; {len(desired)} frames need a folder")
+    else:
+        targets = [out / n for n in names]
+    kept = {Path(p).resolve(): p for p in [*desired, *inputs]}
+    for target in targets:
+        path = target.resolve()
+        if owner := next((q for q in (path, *path.parents) if q in kept), None):
+            where = "overwrite" if owner == path else "write inside"
+            raise ProcamError(f"--out {out}: would {where} the input {kept[owner]}; choose another output")
+    return targets
+
+
 def cmd_compensate(args: argparse.Namespace) -> None:
     import cv2
     import numpy as np
@@ -245,6 +274,9 @@ def cmd_compensate(args: argparse.Namespace) -> None:
     def tensor(images: list) -> torch.Tensor:
         return torch.from_numpy(to_float(np.stack(images))).permute(0, 3, 1, 2)
 
+    names = [Path(p).with_suffix(".png").name for p in args.desired]
+    targets = _compensate_outputs(Path(args.out), args.desired, names,
+                                  [args.run, *([args.surface] if args.surface else [])])
     surface = read_png(args.surface) if args.surface else None
     if Path(args.run).is_file():
         if surface is None:
@@ -253,7 +285,6 @@ def cmd_compensate(args: argparse.Namespace) -> None:
         h, w = surface.shape[:2]
     else:
         w, h = run_size(read_run_config(args.run))
-    names = [Path(p).with_suffix(".png").name for p in args.desired]
     if len(args.desired) > 1 and len(set(names)) < len(names):
         clash = sorted({n for n in names if names.count(n) > 1})
         raise ProcamError(f"desired images {', '.join(clash)}: two inputs would write one output "
@@ -269,8 +300,6 @@ def cmd_compensate(args: argparse.Namespace) -> None:
               f"{100 * mapped['out_of_reach']:g} % of the pixels out of reach): a = {mapped['a']:.4f}, "
               f"b = {mapped['b']:.4f}" + (" (means over the images)" if mapped["policy"] == "image" else ""))
     frames = frames.permute(0, 2, 3, 1).numpy()
-    out = Path(args.out)
-    targets = [out] if len(args.desired) == 1 and out.suffix == ".png" else [out / n for n in names]
     for target, frame in zip(targets, frames):
         write_png(target, to_uint8(frame))
         print(f"procam: projector frame -> {target}")

@@ -92,6 +92,35 @@ def test_compensate_refuses_two_inputs_with_one_output_name(setup_dir, tmp_path,
     assert (tmp_path / "y.png").is_file()
 
 
+def test_compensate_never_writes_over_its_inputs(setup_dir, tmp_path, capsys):
+    """Every way --out could land on an input is refused before anything is written: the desired
+    image itself, a folder of desired images, the surface image, a file inside the run."""
+    run = tmp_path / "run"
+    assert main(["train", str(setup_dir), "--method", "nayar", "--out", str(run), *TRAIN]) == 0
+    inputs = tmp_path / "inputs"
+    images = {name: np.full((32, 32, 3), v, np.uint8) for name, v in (("a.png", 60), ("b.png", 160))}
+    for name, image in images.items():
+        write_png(inputs / name, image)
+    surface = tmp_path / "surface.png"
+    write_png(surface, np.full((32, 32, 3), 90, np.uint8))
+    model = run / "nayar.npz"
+    before = {p: p.read_bytes() for p in (*inputs.iterdir(), surface, model)}
+    a, b = str(inputs / "a.png"), str(inputs / "b.png")
+    for argv, named in (([a, "--out", a], a),                                     # the image itself
+                        ([a, b, "--out", str(inputs)], a),                         # their folder
+                        ([a, "--surface", str(surface), "--out", str(surface)], str(surface)),
+                        ([a, "--out", str(run / "frame.png")], str(run))):          # inside the run
+        _fails(capsys, ["compensate", str(run), *argv], named, "would")
+    assert {p: p.read_bytes() for p in before} == before
+    # one image to a name of another image type is refused, not turned into a folder
+    _fails(capsys, ["compensate", str(run), a, "--out", str(tmp_path / "res.jpg")], "res.jpg", "name it .png")
+    assert not (tmp_path / "res.jpg").exists()
+    # several images to an existing file
+    (tmp_path / "file").write_text("mine")
+    _fails(capsys, ["compensate", str(run), a, b, "--out", str(tmp_path / "file")], "existing file")
+    assert (tmp_path / "file").read_text() == "mine"
+
+
 # -- class 6: damaged run records ---------------------------------------------------------------
 
 @pytest.mark.parametrize("damage,expected", [
