@@ -254,6 +254,8 @@ BAD = {
     "up along the axis": ('name = "b"\n[projector]\nup = [0.0, 0.0, 1.0]\n',
                           ["projector.up = [0.0, 0.0, 1.0]", "not parallel to projector.look_at"]),
     "not TOML": ('name = "b"\n[camera\n', ["not valid TOML"]),
+    "a frame folder's name": ('name = "train"\n', ['name = "train"', "frame folder", "ref, train, test"]),
+    "a frame folder's name in capitals": ('name = "Ref"\n', ['name = "Ref"', "frame folder"]),
 }
 
 

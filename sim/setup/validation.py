@@ -21,6 +21,7 @@ from pathlib import Path
 from sim import images, surfaces
 from sim.errors import DatasetError, SetupError
 from sim.io import read_png
+from sim.layout import SPLITS
 from sim.options import Table, parse, shown
 from sim.setup.schema import NAME_PATTERN, SECTIONS, AmbientConfig, Setup, SurfaceConfig, temperature_rgb
 
@@ -144,6 +145,9 @@ def parse_setup(mapping: Mapping, source: str = "<string>", base_dir: Path | str
     name = mapping["name"]
     if not isinstance(name, str) or not re.fullmatch(NAME_PATTERN, name):
         raise SetupError(f"{source}: {prefix}name = {shown(name)}: expected a string matching {NAME_PATTERN}")
+    if name.lower() in SPLITS:
+        raise SetupError(f"{source}: {prefix}name = {shown(name)}: a dataset root's frame folder has that "
+                         f"name ({', '.join(SPLITS)} are taken); choose another")
     sections = {}
     for section, cls in SECTIONS.items():
         data = mapping.get(section, {})
