@@ -351,7 +351,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
     n_test = options.pop("n_test", None)
     if "n_train" in options:
         raise ProcamError("--n-train: the bench takes its training sizes from --sizes")
-    cfg = BenchConfig(profile=args.profile, methods=tuple(args.methods.split(",")),
+    cfg = BenchConfig(profile=args.profile, methods=_names(args.methods, "--methods"),
                       sizes=args.sizes, tables=tuple(args.tables.split(",")), size=args.size,
                       n_test=n_test, overrides=options, closed_loop=args.closed_loop, target=_target(args))
     if args.only is not None and not args.suite:
@@ -402,8 +402,12 @@ def add_bench(sub) -> None:
     p.set_defaults(func=cmd_bench)
 
 
-def _methods(text: str) -> tuple[str, ...]:
-    return tuple(m.strip() for m in text.split(",") if m.strip())
+def _names(text: str, option: str) -> tuple[str, ...]:
+    """The comma-separated names of ``option``; refused when none is given (``--only ,``)."""
+    names = tuple(m.strip() for m in text.split(",") if m.strip())
+    if not names:
+        raise ProcamError(f"{option} {text!r}: expected one or more comma-separated names")
+    return names
 
 
 def cmd_study(args: argparse.Namespace) -> None:
@@ -411,8 +415,8 @@ def cmd_study(args: argparse.Namespace) -> None:
 
     study = with_overrides(load_study(study_file(args.study)), size=args.size, n_train=args.n_train,
                            n_test=args.n_test, iters=args.iters, seeds=args.seeds,
-                           methods=_methods(args.methods) if args.methods else None,
-                           only=_methods(args.only) if args.only else None,
+                           methods=_names(args.methods, "--methods") if args.methods is not None else None,
+                           only=_names(args.only, "--only") if args.only is not None else None,
                            target_policy=args.target_policy, out_of_reach=args.out_of_reach)
     executor = _executor(args)
     done = run_study(study, Path(args.out), executor, progress=not args.quiet and executor.name == "local")

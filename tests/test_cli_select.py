@@ -77,3 +77,17 @@ def test_unknown_names_are_refused_with_the_valid_ones(suite, tmp_path, capsys, 
 def test_bench_only_needs_a_suite(tmp_path, capsys):
     assert main(["bench", "--data", str(tmp_path), "--out", str(tmp_path / "b"), "--only", "x"]) == 2
     assert "--only selects setups of a suite" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["study", "ambient", "--only", ","], "--only ',': expected one or more comma-separated names"),
+    (["study", "ambient", "--methods", ","], "--methods ',': expected one or more comma-separated names"),
+    (["bench", "suite", "--methods", " ,"], "--methods ' ,': expected one or more comma-separated names"),
+    (["render", "suite", "--only", ",", "--list"], "--only ',': expected one or more comma-separated setup names"),
+])
+def test_an_empty_selection_is_refused_and_named(tmp_path, capsys, argv, message):
+    """``--only ,`` selects nothing rather than everything, and each option names itself."""
+    assert main([*argv, "--out", str(tmp_path / "out")] if argv[0] != "render" else argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()

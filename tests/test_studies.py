@@ -146,6 +146,7 @@ def test_training_axis_shares_runs_of_methods_without_the_option():
     ('key = "projector.apperture"\nvalues = [0.0]', r"study\.toml.*projector\.apperture: unknown key"),
     ('key = "seed"\nvalues = [1, 2]', r"study\.toml: axis\[0\]\.key = 'seed': not a study axis"),
     ('key = "smoothing"\nvalues = [0.1]', r"study\.toml: axis 'smoothing': not an option of any method"),
+    ('key = "ambient.radiance"\nvalues = [1, 1.0]', r"axis\[0\]\.values = \[1, 1\.0\]: expected distinct values"),
 ])
 def test_bad_axes_are_named(tmp_path, capsys, axis, message):
     (tmp_path / "base.toml").write_text(BASE)

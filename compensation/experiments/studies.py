@@ -144,6 +144,19 @@ def _size(path: Path, value) -> tuple[int, int]:
     return tuple(value)
 
 
+def _distinct(value) -> str:
+    """What makes two axis values the same point: numbers by value, anything else as written.
+
+    >>> _distinct(1) == _distinct(1.0), _distinct(True) == _distinct(1), _distinct([1, 2]) == _distinct([1.0, 2])
+    (True, False, True)
+    """
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_distinct(v) for v in value) + "]"
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return repr(float(value))
+    return repr(value)
+
+
 def _axis(path: Path, i: int, table) -> Axis:
     where = f"axis[{i}]"
     if not isinstance(table, dict):
@@ -155,8 +168,8 @@ def _axis(path: Path, i: int, table) -> Axis:
         raise _error(path, f"{where}.key", key, "expected a setup key 'section.key' or a training option")
     if not isinstance(values, list) or not values:
         raise _error(path, f"{where}.values", values, "expected a non-empty list")
-    if len({repr(v) for v in values}) < len(values):
-        raise _error(path, f"{where}.values", values, "expected distinct values")
+    if len({_distinct(v) for v in values}) < len(values):
+        raise _error(path, f"{where}.values", values, "expected distinct values (1 and 1.0 are one)")
     if "." in key:
         section = key.split(".", 1)[0]
         if section not in SECTIONS:

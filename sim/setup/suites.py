@@ -144,6 +144,8 @@ def select_setups(setups: list[Setup], only: str | None, source: str) -> list[Se
         return setups
     names = [n.strip() for n in only.split(",")]
     valid = [s.name for s in setups]
+    if not any(names):
+        raise SetupError(f"--only {only!r}: expected one or more comma-separated setup names of {source}")
     unknown = [n for n in names if n not in valid]
     if unknown:
         raise SetupError(f"--only {only}: no setup named {', '.join(repr(n) for n in unknown)} in "
