@@ -16,8 +16,8 @@ import pytest
 from compensation.cli import main
 from compensation.reports.charts import pareto_front, speed_points
 from compensation.reports.report import build_report, load_folder
-from compensation.experiments.jobs import RESULT_COLUMNS
-from compensation.reports.summary import summarize
+from compensation.experiments.jobs import PER_IMAGE_SCORES, RESULT_COLUMNS, result_row
+from compensation.reports.summary import bootstrap_interval, breakpoints, summarize
 from helpers import csv_rows
 from sim.errors import ProcamError
 from sim.io import write_png
@@ -27,10 +27,19 @@ AXIS = "projector.aperture"
 VALUES = [0.0, 1.0, 2.0]
 UNC = [17.0, 16.5, 16.0]
 """Closed-loop PSNR of y projected as is, per point."""
-CL = {"tps": [25.0, 22.0, 16.5], "nayar": [21.0, 22.5, 22.0], "compennet": [20.0, 19.0, 18.0]}
-"""Mean closed-loop PSNR per method and point (seeds 0 and 1 at mean ∓ 0.5). tps leads at 0.0 and
-falls below nayar at 1.0 (its break point: overtaken); compennet and nayar keep >= 1 dB of gain and
-never fall below a method they matched: no break."""
+ORACLE = [26.0, 25.0, 24.0]
+"""Closed-loop PSNR of the feedback oracle, per point."""
+CL = {"tps": [25.0, 22.0, 16.5], "nayar": [23.5, 22.5, 22.0], "compennet": [20.0, 19.0, 18.0]}
+"""Mean closed-loop PSNR per method and point (seeds 0 and 1 at mean ∓ 0.5; each run's four test
+images at its PSNR -1, -0.5, +0.5, +1 dB). tps stays within 3 dB of the oracle at 0.0 and 1.0 (3 dB
+exactly: not beyond with 95 % confidence) and falls 7.5 dB below it at 2.0 (its break point), where
+its gain (seeds at +1.5 and -0.5 dB) is uncertain on both sides of 1 dB; nayar stays within 2.5 dB
+of the oracle: no break; compennet is 6 dB below it everywhere, but its runs at 0.0 and 1.0 were
+still training (undertrained): it breaks at 2.0."""
+OFFSETS = [-1.0, -0.5, 0.5, 1.0]
+"""Each test image's closed-loop PSNR about its run's (dB)."""
+UNDERTRAINED = {("compennet", 0), ("compennet", 1)}
+"""(method, point) whose runs' training loss was still falling at the end."""
 FIT_S = {"tps": 0.05, "nayar": 0.2, "compennet": 10.0}
 """Fit time per method: tps and nayar are the Pareto front, compennet is slower and worse."""
 DISTINCT = (212, 23, 97)
@@ -44,9 +53,21 @@ def _row(point, method, seed, cl, status="ok", error=""):
             "psnr": cl + 3 if status == "ok" else "", "ssim": 0.8 - 0.05 * point if status == "ok" else "",
             "deltae": 5.0 + point, "cl_psnr": cl if status == "ok" else "",
             "cl_ssim": 0.75 - 0.05 * point if status == "ok" else "", "unc_psnr": UNC[point] - 1,
-            "unc_ssim": 0.5, "cl_unc_psnr": UNC[point], "cl_unc_ssim": 0.45, "oracle_psnr": 28.0 - point,
+            "unc_ssim": 0.5, "cl_unc_psnr": UNC[point], "cl_unc_ssim": 0.45, "oracle_psnr": ORACLE[point],
             "oracle_ssim": 0.9, "fit_s": FIT_S[method], "infer_ms": 1.0 + FIT_S[method],
-            "run": f"runs/p{point}/{method}-s{seed}"}
+            "run": f"runs/p{point}/{method}-s{seed}", "undertrained": int((method, point) in UNDERTRAINED),
+            "reachable_fraction": 0.9 - 0.2 * point}
+
+
+def _images(row):
+    """The per_image.csv rows of an ok run: its PSNR spread over four images, the uncompensated and
+    oracle images about theirs."""
+    if row["status"] != "ok":
+        return []
+    return [{**{k: row[k] for k in ("point", AXIS, "setup", "method", "n_train", "seed")}, "image": i + 1,
+             "psnr": row["psnr"] + d, "cl_psnr": row["cl_psnr"] + d,
+             "cl_unc_psnr": row["cl_unc_psnr"] + 0.2 * (-1) ** i, "oracle_psnr": row["oracle_psnr"] + 0.3 * (-1) ** i}
+            for i, d in enumerate(OFFSETS)]
 
 
 def make_study(folder: Path) -> Path:
@@ -69,6 +90,10 @@ def make_study(folder: Path) -> Path:
         w = csv.DictWriter(f, columns, restval="")
         w.writeheader()
         w.writerows(rows)
+    with open(folder / "per_image.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, ["point", AXIS, "setup", "method", "n_train", "seed", "image", *PER_IMAGE_SCORES])
+        w.writeheader()
+        w.writerows([i for r in rows for i in _images(r)])
     for point in range(3):
         setup = make_dataset(folder / "data", f"p{point}", size=32, n_train=2, n_test=4)
         (setup / "setup.toml").write_text(f'{MARKER}\nname = "p{point}"\n')
@@ -114,34 +139,84 @@ def test_summary_mean_std_over_seeds(study):
 
 def test_break_points(study):
     breaks = {r["method"]: r for r in csv_rows(study / "breakpoints.csv")}
-    assert breaks["tps"]["break_value"] == "1" and breaks["tps"]["kind"] == "overtaken"
-    assert breaks["tps"]["other"] == "nayar" and breaks["tps"]["point"] == "1"
-    assert "nayar" in breaks["tps"]["reason"]
+    tps = breaks["tps"]
+    assert (tps["break_value"], tps["kind"], tps["point"]) == ("2", "oracle", "2")
+    assert float(tps["oracle_gap_db"]) == pytest.approx(7.5)
+    assert 3.0 < float(tps["oracle_gap_lo"]) < 7.5 < float(tps["oracle_gap_hi"])
+    # its gain (0.5 dB on average) is not below 1 dB with 95 % confidence: no gain break
+    assert float(tps["gain_db"]) == pytest.approx(0.5) and float(tps["gain_lo"]) < 0.5 < 1.0 < float(tps["gain_hi"])
+    assert "below the oracle's" in tps["reason"] and tps["undertrained"] == ""
     assert breaks["nayar"]["kind"] == "none" and breaks["nayar"]["break_value"] == ""
-    assert breaks["compennet"]["kind"] == "none"
+    cn = breaks["compennet"]  # 6 dB below the oracle at 0.0 and 1.0 too, but still training there
+    assert (cn["break_value"], cn["kind"], cn["undertrained"]) == ("2", "oracle", "0; 1")
+    summary = {(r["point"], r["method"]): r for r in csv_rows(study / "summary.csv")}
+    assert summary[("1", "tps")]["undertrained"] == "0" and summary[("1", "compennet")]["undertrained"] == "2"
+    lo, hi = float(summary[("1", "tps")]["oracle_gap_lo"]), float(summary[("1", "tps")]["oracle_gap_hi"])
+    assert lo < 3.0 < hi  # 3 dB below the oracle on average: within the margin's reach, no break
 
 
 def test_break_point_by_gain_and_per_second_axis(tmp_path):
-    """Without nayar, tps breaks where its gain falls below 1 dB (0.5 dB at 2.0); with a second axis
-    each of its values gets its own break point."""
+    """Without nayar and with both tps seeds at 16.5 dB at 2.0, tps breaks where its gain is below
+    1 dB with confidence (0.5 dB, every sample); with a second axis each of its values gets its own
+    break point."""
     study, rows = load_folder(make_study(tmp_path))
-    from compensation.reports.summary import breakpoints
-
     kept = [r for r in rows if r["method"] != "nayar"]
+    for r in kept:
+        if r["method"] == "tps" and r["point"] == 2:
+            r["cl_psnr"], r["per_image"] = 16.5, {**r["per_image"], "cl_psnr": [16.5 + 0.2 * (-1) ** i for i in range(4)]}
     found = {b["method"]: b for b in breakpoints(summarize(kept, [AXIS]), study)}
     assert (found["tps"]["break_value"], found["tps"]["kind"]) == (2.0, "gain")
-    assert found["tps"]["gain_db"] == pytest.approx(0.5)
+    assert found["tps"]["gain_db"] == pytest.approx(0.5) and found["tps"]["gain_hi"] == pytest.approx(0.5)
     two = [{**r, "camera.read_noise": noise, "point": r["point"] + 10 * k}
            for k, noise in enumerate((0.0, 0.01)) for r in kept
            if not (noise == 0.01 and r["method"] == "tps" and r["point"] == 1)]
     for r in two:
         if r["camera.read_noise"] == 0.01 and r["method"] == "tps" and r["point"] == 12:
-            r["cl_psnr"] = 25.0  # no gain break at the last value either
+            r["cl_psnr"], r["per_image"] = 25.0, {}  # no break at the last value either
     study2 = {"axes": [*study["axes"], {"key": "camera.read_noise", "values": [0.0, 0.01]}]}
     found = {(b["method"], b["camera.read_noise"]): b
              for b in breakpoints(summarize(two, [AXIS, "camera.read_noise"]), study2)}
     assert found[("tps", 0.0)]["break_value"] == 2.0
     assert found[("tps", 0.01)]["kind"] == "none"
+
+
+def test_bootstrap_interval():
+    """Hand-computed: the mean of 4 resamples of [0, 0, 0, 1] is k/4, k ~ Binomial(4, 1/4): P(k <= 2)
+    = 243/256 < 97.5 % <= P(k <= 3), P(k = 0) = 81/256 > 2.5 %: the 95 % interval is (0, 0.75).
+    Constructed: 400 values of N(2, 1) drawn in mirrored pairs (mean exactly 2) give an interval
+    holding 2, about 2 · 1.96 / 20 wide; the same seed gives the same interval; over 200 samples of
+    N(2, 1) the interval holds 2 about 95 % of the time."""
+    assert bootstrap_interval([0.0, 0.0, 0.0, 1.0]) == (0.0, 0.75)
+    assert bootstrap_interval([0.0, 1.0]) == (0.0, 1.0)
+    rng = np.random.default_rng(7)
+    z = rng.normal(0.0, 1.0, 200)
+    draws = np.concatenate([2.0 + z, 2.0 - z])
+    lo, hi = bootstrap_interval(draws)
+    assert lo < 2.0 < hi and hi - lo == pytest.approx(2 * 1.96 * draws.std() / 20, rel=0.15)
+    assert bootstrap_interval(draws) == (lo, hi) and bootstrap_interval(draws, seed=1) != (lo, hi)
+    held = [lo < 2.0 < hi for lo, hi in (bootstrap_interval(rng.normal(2.0, 1.0, 50), samples=500)
+                                         for _ in range(200))]
+    assert 0.88 <= np.mean(held) <= 0.99
+    assert all(np.isnan(bootstrap_interval([float("nan")])))
+
+
+def test_undertrained_run_from_its_loss(tmp_path):
+    """A run whose loss.csv still falls over its last 10 % of iterations is flagged undertrained;
+    one that has levelled off (noise within the tolerance) is not."""
+    metrics = {"psnr": 20.0, "rmse": 0.2, "ssim": 0.7, "deltaE": 5.0, "final_loss": 0.1,
+               "uncompensated": {"psnr": 15.0, "rmse": 0.3, "ssim": 0.5, "deltaE": 9.0},
+               "psnr_per_image": [19.0, 21.0]}
+    curves = {"falling": [1.0 / (1 + 0.05 * i) for i in range(200)],
+              "flat": [1.0 / (1 + 0.05 * i) for i in range(100)] + [0.17 + 0.001 * (-1) ** i for i in range(100)]}
+    flags = {}
+    for name, losses in curves.items():
+        run = tmp_path / name
+        run.mkdir()
+        (run / "loss.csv").write_text("iteration,loss,lr\n" + "".join(f"{i},{v},0.001\n" for i, v in enumerate(losses)))
+        row = result_row({"ok": True, "metrics": metrics, "run": str(run)}, None, tmp_path)
+        assert row["status"] == "ok" and row["per_image"] == {"psnr": [19.0, 21.0]}
+        flags[name] = row["undertrained"]
+    assert flags == {"falling": 1, "flat": 0}
 
 
 def test_failures_listed(study):
@@ -174,7 +249,7 @@ def _png_ok(path: Path, min_side: int = 300) -> np.ndarray:
 
 def test_charts_written(study):
     charts = study / "charts"
-    for name in ("study", "speed"):
+    for name in ("study", "gain", "speed"):
         _png_ok(charts / f"{name}.png")
         assert (charts / f"{name}.svg").stat().st_size > 10_000
     grid = _png_ok(charts / "grid_point0.png")
@@ -187,9 +262,10 @@ def test_report_self_contained(study):
     assert not re.search(r"""(src|href)\s*=\s*["']?(https?:|//|file:)""", page)
     assert "<script" not in page and "<link" not in page and "@import" not in page
     uris = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
-    assert len(uris) >= 3 + 2  # three figure grids (first, middle, last value) and two charts
+    assert len(uris) >= 3 + 3  # three figure grids (first, middle, last value) and three charts
     assert "Where does projector defocus break each method?" in page
-    assert "falls below nayar" in page and "loss inf at iteration 7" in page
+    assert "dB below the oracle" in page and "loss inf at iteration 7" in page
+    assert "compennet (n=8) at 0; 1" in page and "undertrained, not broken" in page
     assert MARKER in page and "0.test" in page and "2026-12-01T22:00:00" in page
     assert (study / "report.html").stat().st_size < 3_000_000
 
@@ -253,7 +329,6 @@ def test_training_size_factor():
     """A factor that sets n_train (a training-size study): one line per method across sizes, and
     the break points are found along it (not one point per size)."""
     from compensation.reports.charts import study_lines
-    from compensation.reports.summary import breakpoints
 
     key = "train.n_train"
     cl = {"tps": [20.0, 22.0, 24.0], "compennet": [15.0, 20.0, 25.0]}
@@ -264,7 +339,8 @@ def test_training_size_factor():
     assert set(study_lines(summary, key, [8, 16, 32], "cl_psnr")) == {("tps", ""), ("compennet", "")}
     found = {b["method"]: b for b in breakpoints(summary, study)}
     assert (found["compennet"]["break_value"], found["compennet"]["kind"]) == (8.0, "gain")
-    assert (found["tps"]["break_value"], found["tps"]["other"]) == (32.0, "compennet")
+    assert found["compennet"]["gain_db"] == -2.0  # one run per size: its own gain is the interval
+    assert (found["tps"]["kind"], found["tps"]["break_value"]) == ("none", "")  # 3 to 7 dB of gain
     assert found["tps"]["n_train"] == ""
 
 

@@ -2,7 +2,8 @@
 accuracy.
 
 The data each chart draws comes from small pure functions (:func:`axis_positions`,
-:func:`study_lines`, :func:`baseline_line`, :func:`speed_points`, :func:`pareto_front`), tested on
+:func:`study_lines`, :func:`baseline_line`, :func:`gain_lines`, :func:`oracle_gain`,
+:func:`speed_points`, :func:`pareto_front`), tested on
 their own; the ``draw_*`` functions only draw it. Files go to ``DIR/charts/`` as PNG and SVG:
 
 ``study.png``                  one axis: surrogate and closed-loop panels (PSNR, SSIM, ΔE where
@@ -10,6 +11,11 @@ their own; the ``draw_*`` functions only draw it. Files go to ``DIR/charts/`` as
                                with a ± std band, uncompensated and the oracle bound, break points
                                (star and vertical line) and failures (red x)
 ``study_<key>=<value>.png``    two axes: the same per value of the second axis
+``gain.png``                   closed-loop PSNR gain over uncompensated against the factor, one line
+                               per method and training size with its bootstrap interval (band), the
+                               1 dB line, the oracle's gain and break points (star); below, the
+                               share of the targets' pixels the setup can show (reachable fraction)
+``gain_<key>=<value>.png``     two axes: the same per value of the second axis
 ``speed.png``                  fit time and inference ms per frame (log x) against PSNR (closed loop
                                where scored), every method and training size, the Pareto front
 """
@@ -22,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from compensation.reports.summary import is_finite, order_key, closed_loop_gain, n_train_follows
+from compensation.reports.summary import (BREAK_GAIN_DB, CONFIDENCE, is_finite, order_key, closed_loop_gain,
+                                          n_train_follows)
 from sim.io import atomic_write
 
 PANELS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("deltae", "ΔE (CIEDE2000)"))
@@ -95,6 +102,44 @@ def baseline_line(summary: list[dict], key: str, listed: list, score: str) -> tu
             xs.append(pos[v])
             ys.append(float(np.mean(vals)))
     return xs, ys
+
+
+def gain_lines(summary: list[dict], key: str, listed: list) -> dict[tuple, dict]:
+    """One line per (method, n_train), as :func:`study_lines`: ``x``, ``value``, ``mean``
+    (``gain_db``), ``lo`` and ``hi`` (its bootstrap interval) of the closed-loop gain, in axis order.
+
+    >>> s = [{"f": v, "method": "tps", "n_train": 8, "gain_db": g, "gain_lo": g - 1, "gain_hi": g + 1}
+    ...      for v, g in ((2.0, 3.0), (1.0, 5.0))]
+    >>> line = gain_lines(s, "f", [1.0, 2.0])[("tps", 8)]
+    >>> line["x"], line["mean"], line["lo"]
+    ([1.0, 2.0], [5.0, 3.0], [4.0, 2.0])
+    """
+    pos, _ = axis_positions([r[key] for r in summary], listed)
+    follows = n_train_follows(summary, key)
+    lines: dict[tuple, dict] = {}
+    for r in sorted(summary, key=lambda r: order_key(r[key], listed)):
+        line = lines.setdefault((r["method"], "" if follows else r["n_train"]),
+                                {"x": [], "value": [], "mean": [], "lo": [], "hi": []})
+        line["x"].append(pos[r[key]])
+        line["value"].append(r[key])
+        for name, column in (("mean", "gain_db"), ("lo", "gain_lo"), ("hi", "gain_hi")):
+            line[name].append(r.get(column, math.nan))
+    return lines
+
+
+def oracle_gain(summary: list[dict], key: str, listed: list) -> tuple[list, list]:
+    """The feedback oracle's closed-loop PSNR gain over uncompensated against the factor (the
+    :func:`baseline_line` of each), where both are scored.
+
+    >>> s = [{"f": 1.0, "oracle_psnr_mean": 20.0, "cl_unc_psnr_mean": 17.0},
+    ...      {"f": 2.0, "oracle_psnr_mean": 19.0, "cl_unc_psnr_mean": float("nan")}]
+    >>> oracle_gain(s, "f", [1.0, 2.0])
+    ([1.0], [3.0])
+    """
+    unc = dict(zip(*baseline_line(summary, key, listed, "cl_unc_psnr")))
+    xs, ys = baseline_line(summary, key, listed, "oracle_psnr")
+    kept = [(x, y - unc[x]) for x, y in zip(xs, ys) if x in unc]
+    return [x for x, _ in kept], [y for _, y in kept]
 
 
 def speed_points(summary: list[dict]) -> list[dict]:
@@ -183,11 +228,8 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
         The study's first axis (``key``, ``values``, optional ``label`` and ``unit``).
     """
     plt = pyplot()
-    from matplotlib.ticker import NullFormatter
-
     key, listed = axis["key"], axis["values"]
-    pos, numeric = axis_positions([r[key] for r in summary], listed)
-    log_x = numeric and min(pos.values()) > 0 and max(pos.values()) >= LOG_SPAN * min(pos.values())
+    pos, numeric, log_x, xlabel = _x_axis(axis, summary)
     metrics = [(m, label) for m, label in PANELS
                if any(is_finite(r.get(f"{p}{m}_mean", math.nan)) for r in summary for p, *_ in SCOPES)]
     scopes = [s for s in SCOPES if any(is_finite(r.get(f"{s[0]}psnr_mean", math.nan)) for r in summary)] or [SCOPES[0]]
@@ -195,8 +237,6 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
                              squeeze=False)
     colours = _colours(list({r["method"] for r in summary}))
     sizes = [""] if n_train_follows(summary, key) else sorted({r["n_train"] for r in summary})
-    xlabel = axis.get("label") or key
-    xlabel += f" ({axis['unit']})" if axis.get("unit") else ""
     for row, (prefix, scope, unc, bound) in enumerate(scopes):
         for col, (metric, label) in enumerate(metrics):
             ax = axes[row][col]
@@ -229,14 +269,35 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
                             color=colours[b["method"]], ls="none", zorder=5,
                             label=f"break: {b['method']}" + (f", n={b['n_train']}" if len(sizes) > 1 else ""))
             _draw_failures(ax, fails, key, pos, score)
-            if not numeric:
-                ax.set_xticks(list(pos.values()), [str(v) for v in pos])
-            elif log_x:
-                ax.set_xscale("log")
-                ax.set_xticks(list(pos.values()), [f"{v:g}" for v in pos])
-                ax.xaxis.set_minor_formatter(NullFormatter())
-            ax.set_xlabel(xlabel, fontsize=9)
-            ax.grid(alpha=0.3)
+            _format_x(ax, pos, numeric, log_x, xlabel)
+    return _finish(plt, fig, axes, stem, title)
+
+
+def _x_axis(axis: dict, summary: list[dict]) -> tuple[dict, bool, bool, str]:
+    """Positions of the factor's values, whether numeric, whether on a log axis, and its label."""
+    key = axis["key"]
+    pos, numeric = axis_positions([r[key] for r in summary], axis["values"])
+    log_x = numeric and min(pos.values()) > 0 and max(pos.values()) >= LOG_SPAN * min(pos.values())
+    label = (axis.get("label") or key) + (f" ({axis['unit']})" if axis.get("unit") else "")
+    return pos, numeric, log_x, label
+
+
+def _format_x(ax, pos: dict, numeric: bool, log_x: bool, xlabel: str) -> None:
+    """Ticks at the factor's values (categorical, or a log axis), its label and a grid."""
+    from matplotlib.ticker import NullFormatter
+
+    if not numeric:
+        ax.set_xticks(list(pos.values()), [str(v) for v in pos])
+    elif log_x:
+        ax.set_xscale("log")
+        ax.set_xticks(list(pos.values()), [f"{v:g}" for v in pos])
+        ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel(xlabel, fontsize=9)
+    ax.grid(alpha=0.3)
+
+
+def _finish(plt, fig, axes, stem: Path, title: str) -> list[Path]:
+    """One legend for every panel under the figure, the title, and the files saved."""
     handles, labels = {}, []
     for ax in axes.flat:
         for h, lab in zip(*ax.get_legend_handles_labels()):
@@ -251,6 +312,52 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
         return _save(fig, stem)
     finally:
         plt.close(fig)
+
+
+def draw_gain(summary: list[dict], breaks: list[dict], axis: dict, stem: Path, title: str) -> list[Path]:
+    """Draw one gain chart (see the module's description) to ``stem.png`` and ``stem.svg``.
+
+    Parameters
+    ----------
+    summary, breaks : list of dict
+        The rows of :func:`~compensation.reports.summary.summarize` and
+        :func:`~compensation.reports.summary.breakpoints` for the points drawn.
+    axis : dict
+        The study's first axis (``key``, ``values``, optional ``label`` and ``unit``).
+    """
+    plt = pyplot()
+    key, listed = axis["key"], axis["values"]
+    pos, numeric, log_x, xlabel = _x_axis(axis, summary)
+    fig, axes = plt.subplots(2, 1, figsize=(7.5, 7.0), squeeze=False, sharex=True,
+                             gridspec_kw={"height_ratios": (3, 1.3)})
+    ax, reach = axes[0][0], axes[1][0]
+    colours = _colours(list({r["method"] for r in summary}))
+    sizes = [""] if n_train_follows(summary, key) else sorted({r["n_train"] for r in summary})
+    for (method, n), line in gain_lines(summary, key, listed).items():
+        name = method + (f", n={n}" if len(sizes) > 1 else "")
+        ax.plot(line["x"], line["mean"], color=colours[method], marker=MARKERS[sizes.index(n) % len(MARKERS)],
+                ms=4, label=name)
+        ax.fill_between(line["x"], line["lo"], line["hi"], color=colours[method], alpha=0.18, lw=0)
+    xs, ys = oracle_gain(summary, key, listed)
+    if xs:
+        ax.plot(xs, ys, ":", color="black", lw=1.4, label="feedback oracle")
+    ax.axhline(BREAK_GAIN_DB, color=FAILURE_COLOUR, lw=1.0, ls="--", label=f"{BREAK_GAIN_DB:g} dB")
+    for b in breaks:
+        if b["kind"] in ("gain", "oracle") and b["break_value"] in pos and is_finite(b["gain_db"]):
+            ax.plot([pos[b["break_value"]]], [b["gain_db"]], marker="*", ms=14, mec="black",
+                    color=colours[b["method"]], ls="none", zorder=5,
+                    label=f"break: {b['method']}" + (f", n={b['n_train']}" if len(sizes) > 1 else ""))
+    ax.set_ylabel("closed-loop PSNR gain (dB)")
+    ax.set_title(f"gain over uncompensated, {100 * CONFIDENCE:g} % bootstrap interval (band)", fontsize=10)
+    ax.grid(alpha=0.3)
+    xs, ys = baseline_line(summary, key, listed, "reachable_fraction")
+    reach.plot(xs, ys, "o-", color="black", ms=4, label="reachable fraction")
+    if not xs:
+        reach.text(0.5, 0.5, "not recorded", ha="center", va="center", transform=reach.transAxes)
+    reach.set_ylim(0, 1.02)
+    reach.set_ylabel("reachable fraction")
+    _format_x(reach, pos, numeric, log_x, xlabel)
+    return _finish(plt, fig, axes, stem, title)
 
 
 def _draw_failures(ax, fails: list[dict], key: str, pos: dict, score: str) -> None:
@@ -327,8 +434,8 @@ def _slug(text: str) -> str:
 
 def write_charts(folder: Path, study: dict, summary: list[dict], breaks: list[dict],
                  fails: list[dict]) -> list[Path]:
-    """Draw every chart of a folder into ``folder/charts``: the study charts (one per value of a
-    second axis) and the speed–accuracy chart.
+    """Draw every chart of a folder into ``folder/charts``: the study and gain charts (one each per
+    value of a second axis; a gain chart where gains are scored) and the speed–accuracy chart.
 
     Returns
     -------
@@ -349,8 +456,12 @@ def write_charts(folder: Path, study: dict, summary: list[dict], breaks: list[di
             where = ", ".join(f"{k} = {v:g}" if is_finite(v) else f"{k} = {v}" for k, v in zip(second, values))
             stem = "study" + "".join(f"_{k}={v:g}" if is_finite(v) else f"_{k}={v}" for k, v in zip(second, values))
             match = lambda r: all(r.get(k) == v for k, v in zip(second, values))  # noqa: E731
+            heading = f"{name}" + (f" ({where})" if where else "")
             out.append(draw_study(group, [b for b in breaks if match(b)], [f for f in fails if match(f)],
-                                  first, charts / _slug(stem), f"{name}" + (f" ({where})" if where else ""))[0])
+                                  first, charts / _slug(stem), heading)[0])
+            if any(is_finite(r.get("gain_db", math.nan)) for r in group):
+                out.append(draw_gain(group, [b for b in breaks if match(b)], first,
+                                     charts / _slug("gain" + stem[len("study"):]), heading)[0])
     points = speed_points(summary)
     if points:
         out.append(draw_speed(points, charts / "speed", f"{name}: speed against accuracy")[0])

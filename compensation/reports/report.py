@@ -9,7 +9,8 @@ inlined as base64 ``data:`` URIs and the style sheet is inline: the page needs n
 other file. It is written atomically to ``DIR/report.html``, beside the files it is made from:
 ``summary.csv``, ``breakpoints.csv``, ``failures.csv`` and ``charts/`` (written again each time).
 
-A folder is read from ``study.json`` and ``results.csv``; a bench folder written before those
+A folder is read from ``study.json`` and ``results.csv`` (with ``per_image.csv``, the per-image
+scores of the break points' intervals, where it has one); a bench folder written before those
 existed (``per_setup.csv`` and ``bench.json``) is read from its Table 1 rows and run folders.
 """
 from __future__ import annotations
@@ -28,7 +29,8 @@ import numpy as np
 from compensation.data import frames_root, surface_path
 from compensation.reports import charts as ch
 from compensation.experiments.closed_loop import CAPTURES_DIR
-from compensation.reports.summary import (is_finite, cell_text, order_key, axis_keys, break_columns,
+from compensation.reports.summary import (CONFIDENCE, BREAK_GAIN_DB, ORACLE_MARGIN_DB, is_finite, cell_text,
+                                             order_key, axis_keys, attach_per_image, break_columns,
                                              breakpoints, failure_columns, failures, read_results,
                                              main_rows, read_study, summarize,
                                              write_summaries)
@@ -105,7 +107,8 @@ def load_folder(folder: Path) -> tuple[dict, list[dict]]:
         raise ProcamError(f"{folder}: folder not found")
     if (folder / "study.json").is_file():
         study = read_study(folder)
-        return study, read_results(folder / "results.csv", axis_keys(study))
+        return study, attach_per_image(read_results(folder / "results.csv", axis_keys(study)),
+                                       folder / "per_image.csv")
     if (folder / "per_setup.csv").is_file() and (folder / "bench.json").is_file():
         return _bench_rows(folder)
     raise ProcamError(f"{folder}: not a study or bench folder (expected study.json and results.csv, "
@@ -417,6 +420,25 @@ def target_sentence(study: dict, rows: list[dict]) -> str:
             f"{shown}).")
 
 
+def break_sentence(breaks: list[dict]) -> str:
+    """The break-point rule in words, and which methods were undertrained rather than broken.
+
+    >>> break_sentence([{"method": "compennet", "n_train": 8, "undertrained": "0.5; 1"}]).split("breaks: ")[1]
+    'compennet (n=8) at 0.5; 1: its training loss was still falling at the end there, so it is undertrained, not broken.'
+    """
+    level = f"{100 * CONFIDENCE:g} %"
+    text = (f"A method breaks at the first value where, with {level} confidence (percentile bootstrap over "
+            f"the test images and seeds), its closed-loop PSNR gain over uncompensated is below "
+            f"{BREAK_GAIN_DB:g} dB or its PSNR is more than {ORACLE_MARGIN_DB:g} dB below the feedback "
+            "oracle's.")
+    held = [f"{b['method']} (n={b['n_train']}) at {b['undertrained']}" if b["n_train"] != "" else
+            f"{b['method']} at {b['undertrained']}" for b in breaks if b.get("undertrained")]
+    if held:
+        text += (f" Not counted as breaks: {', '.join(held)}: its training loss was still falling at the end "
+                 "there, so it is undertrained, not broken.")
+    return text
+
+
 def build_report(folder: Path) -> Path:
     """Write ``folder/report.html`` (and the summaries and charts it shows) for a study or bench
     folder; see the module's description.
@@ -450,8 +472,8 @@ def build_report(folder: Path) -> Path:
                 f"{len({r['method'] for r in rows})} method(s); {len(fails)} failure(s).</p>")
     if axes:
         cols = [c for c in break_columns(axes) if c not in ("axis", "point", "psnr", "score")]
-        body.append("<h2>Break points</h2>" + html_table(
-            cols, [[b.get(c, "") for c in cols] for b in breaks]))
+        body.append("<h2>Break points</h2>" + f'<p class="note">{html.escape(break_sentence(breaks))}</p>'
+                    + html_table(cols, [[b.get(c, "") for c in cols] for b in breaks]))
     body.append("<h2>Figure grid</h2>")
     grids = 0
     for point in grid_points(shown, study):

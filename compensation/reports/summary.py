@@ -9,8 +9,10 @@ the run's ``status`` and its scores (surrogate, closed loop, uncompensated, orac
     only (:func:`summarize`).
 ``breakpoints.csv``
     per method and n_train (and value of a second axis): the first value of the factor where the
-    method's closed-loop PSNR gain over uncompensated falls below :data:`BREAK_GAIN_DB`, or where
-    it falls below a method it was at least as good as at the previous value (:func:`breakpoints`).
+    method's closed-loop PSNR gain over uncompensated is below :data:`BREAK_GAIN_DB`, or its PSNR
+    more than :data:`ORACLE_MARGIN_DB` below the feedback oracle's, with :data:`CONFIDENCE`
+    (:func:`bootstrap_interval` over the point's test images and seeds, from ``per_image.csv``);
+    a point whose runs were still training (``undertrained``) is not a break (:func:`breakpoints`).
 ``failures.csv``
     every run that failed, gave NaN, diverged, or scored below uncompensated (:func:`failures`).
 """
@@ -40,11 +42,23 @@ STATUSES = ("ok", "failed", "nan", "diverged")
 finite; the training loss grew (:data:`compensation.experiments.jobs.DIVERGED_RATIO`) or is not
 finite."""
 BREAK_GAIN_DB = 1.0
-"""A method breaks where its closed-loop PSNR gain over uncompensated falls below this (dB)."""
-OVERTAKE_MARGIN_DB = 0.1
-"""A method is overtaken where it falls below another method by more than this (dB): closer
-crossings are within a single run's spread (two methods 0.02 dB apart swapped places along the
-inter-reflection study's flat lines, ``benchmarks/results/studies/``)."""
+"""A method breaks where its closed-loop PSNR gain over uncompensated is below this (dB): the
+whole confidence interval of the gain lies below it."""
+ORACLE_MARGIN_DB = 3.0
+"""A method breaks where its closed-loop PSNR is more than this below the feedback oracle's (dB):
+the whole confidence interval of the oracle's lead lies above it. Measured feedback reaches what
+the setup can show; a method this far below it fails at compensation, not at the setup's reach."""
+CONFIDENCE = 0.95
+"""Confidence of the break-point intervals: the central percentile bootstrap interval holding this
+share of the resampled means (a break needs the whole interval past its line)."""
+BOOTSTRAP_SAMPLES = 2000
+"""Resamples of each percentile bootstrap interval."""
+BOOTSTRAP_SEED = 0
+"""Seed of the bootstrap's generator: the same results give the same intervals."""
+INTERVALS = ("gain", "oracle_gap")
+"""The intervals of ``summary.csv`` and ``breakpoints.csv`` (dB; each as ``<name>_db``, ``_lo``,
+``_hi``): the closed-loop PSNR gain over uncompensated, and the oracle's lead over the method
+(surrogate gain over the uncompensated captures, and no lead, where the folder has no closed loop)."""
 
 
 def _number(text: str) -> float | str:
@@ -133,8 +147,45 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
             row[key] = _number(raw.get(key) or "")
         for key in ("error", "run", "table", "variant", "target_policy"):
             row[key] = raw.get(key) or ""
+        row["undertrained"] = raw.get("undertrained") == "1"
         rows.append(row)
     return rows
+
+
+def _run_key(row: dict) -> tuple:
+    """What names one run of a folder in ``results.csv`` and ``per_image.csv`` alike."""
+    return tuple(str(row.get(k, "")) for k in ("point", "setup", "method", "n_train", "seed", "table",
+                                                "variant"))
+
+
+def attach_per_image(rows: list[dict], path: Path) -> list[dict]:
+    """``rows`` of :func:`read_results`, each with ``per_image``: its run's per-image scores of
+    ``per_image.csv`` at ``path`` by column (lists in image order, NaN for an empty cell); the rows
+    unchanged where the file is absent (a folder written before it existed).
+
+    Raises
+    ------
+    ProcamError
+        If the file lacks a column it is joined by, or a score cell is not a number.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return rows
+    reader = csv.DictReader(io.StringIO(path.read_text()))
+    missing = [c for c in ("point", "setup", "method", "n_train", "seed", "image")
+               if c not in (reader.fieldnames or [])]
+    if missing:
+        raise ProcamError(f"{path}: missing column(s) {', '.join(missing)}")
+    scores = [c for c in reader.fieldnames if c.endswith("psnr")]
+    found: dict[tuple, dict] = {}
+    for line, raw in enumerate(reader, start=2):
+        per = found.setdefault(_run_key(raw), {c: [] for c in scores})
+        for c in scores:
+            value = _number(raw[c] or "")
+            if isinstance(value, str):
+                raise ProcamError(f"{path}, line {line}: column {c}: expected a number, found {value!r}")
+            per[c].append(value)
+    return [{**r, "per_image": found.get(_run_key(r), {})} for r in rows]
 
 
 def cell_text(value, digits: int | None = 6) -> str:
@@ -192,11 +243,55 @@ def main_rows(rows: list[dict]) -> list[dict]:
     return first or [{**r, "method": r.get("variant") or r["method"]} for r in rows]
 
 
+def bootstrap_interval(values, confidence: float = CONFIDENCE, samples: int = BOOTSTRAP_SAMPLES,
+                       seed: int = BOOTSTRAP_SEED) -> tuple[float, float]:
+    """Percentile bootstrap interval of the mean of the finite ``values``: the central
+    ``confidence`` share of the means of ``samples`` resamples (with replacement, of the same
+    size), drawn by a generator seeded with ``seed``. NaN without values.
+
+    >>> bootstrap_interval([2.0, 2.0, float("nan")])
+    (2.0, 2.0)
+    >>> bootstrap_interval([0.0, 1.0])  # resampled means 0, 0.5, 1 with chances 1/4, 1/2, 1/4
+    (0.0, 1.0)
+    """
+    v = np.array([x for x in values if is_finite(x)], float)
+    if v.size == 0:
+        return float("nan"), float("nan")
+    means = v[np.random.default_rng(seed).integers(0, v.size, (samples, v.size))].mean(axis=1)
+    lo, hi = np.quantile(means, [(1 - confidence) / 2, (1 + confidence) / 2])
+    return float(lo), float(hi)
+
+
+def run_samples(row: dict) -> tuple[list[float], list[float]]:
+    """A run's samples of :data:`INTERVALS`: per test image (``per_image``: closed loop against
+    uncompensated and the oracle, image by image) where kept, else the run's own means (its
+    :func:`closed_loop_gain`, the oracle's lead in closed loop only).
+
+    >>> run_samples({"per_image": {"cl_psnr": [20.0, 22.0], "cl_unc_psnr": [18.0, 18.5],
+    ...                            "oracle_psnr": [24.0, 23.0]}})
+    ([2.0, 3.5], [4.0, 1.0])
+    >>> run_samples({"cl_psnr": 20.0, "cl_unc_psnr": 18.0, "oracle_psnr": float("nan")})
+    ([2.0], [nan])
+    """
+    per = row.get("per_image") or {}
+    cl, unc, oracle = (np.array(per.get(k) or [], float) for k in ("cl_psnr", "cl_unc_psnr", "oracle_psnr"))
+    if cl.size and unc.size == cl.size:
+        return (cl - unc).tolist(), (oracle - cl).tolist() if oracle.size == cl.size else []
+    nan = float("nan")
+    score, gain, which = closed_loop_gain({f"{k}_mean": row.get(k, nan)
+                                           for k in ("cl_psnr", "cl_unc_psnr", "psnr", "unc_psnr")})
+    return [gain], [row.get("oracle_psnr", nan) - score if which == "closed loop" else nan]
+
+
 def summarize(rows: list[dict], axes: list[str]) -> list[dict]:
     """Mean and std over seeds and setups per (point, method, n_train), of the ``ok`` runs.
 
     Each summary row has ``point``, the axis values, ``method``, ``n_train``, ``runs`` (all rows),
-    ``ok`` (rows with status ok) and ``<score>_mean``, ``<score>_std`` for every :data:`SCORES`.
+    ``ok`` (rows with status ok), ``undertrained`` (ok rows flagged so), ``<score>_mean``,
+    ``<score>_std`` for every :data:`SCORES`, and for every :data:`INTERVALS` name its mean over
+    the samples of the ok runs (:func:`run_samples`) ``<name>_db`` and :func:`bootstrap_interval`
+    ``<name>_lo``, ``<name>_hi``: each (run, test image) pair is one sample, so the resamples vary
+    both the seeds (and setups) and the test images.
 
     >>> rows = [dict(point=0, a=1.0, method="m", n_train=8, seed=s, status="ok", cl_psnr=p)
     ...         for s, p in enumerate([20.0, 22.0])]
@@ -204,6 +299,8 @@ def summarize(rows: list[dict], axes: list[str]) -> list[dict]:
     >>> s = summarize(rows, ["a"])[0]
     >>> s["runs"], s["ok"], s["cl_psnr_mean"], round(s["cl_psnr_std"], 3), s["psnr_mean"]
     (3, 2, 21.0, 1.414, nan)
+    >>> s["gain_db"], s["gain_lo"], s["gain_hi"], s["undertrained"]
+    (nan, nan, nan, 0)
     """
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
@@ -215,14 +312,21 @@ def summarize(rows: list[dict], axes: list[str]) -> list[dict]:
                "runs": len(group), "ok": len(ok)}
         for key in SCORES:
             row[f"{key}_mean"], row[f"{key}_std"], _ = mean_std(r.get(key, float("nan")) for r in ok)
+        row["undertrained"] = sum(bool(r.get("undertrained")) for r in ok)
+        samples = [run_samples(r) for r in ok]
+        for i, name in enumerate(INTERVALS):
+            values = [x for pair in samples for x in pair[i]]
+            row[f"{name}_db"] = mean_std(values)[0]
+            row[f"{name}_lo"], row[f"{name}_hi"] = bootstrap_interval(values)
         out.append(row)
     return out
 
 
 def summary_columns(axes: list[str]) -> list[str]:
     """Columns of ``summary.csv``."""
-    return list(dict.fromkeys(["point", *axes, "method", "n_train", "runs", "ok",
-                               *(f"{k}_{s}" for k in SCORES for s in ("mean", "std"))]))
+    return list(dict.fromkeys(["point", *axes, "method", "n_train", "runs", "ok", "undertrained",
+                               *(f"{k}_{s}" for k in SCORES for s in ("mean", "std")),
+                               *(f"{k}_{s}" for k in INTERVALS for s in ("db", "lo", "hi"))]))
 
 
 def order_key(value, listed: list) -> tuple:
@@ -267,38 +371,59 @@ def n_train_follows(summary: list[dict], key: str) -> bool:
     return len({n for _, n in pairs}) > 1 and len(pairs) == len({v for v, _ in pairs})
 
 
-BREAK_COLUMNS = ("method", "n_train", "axis", "break_value", "point", "kind", "other", "gain_db",
-                 "psnr", "score", "reason")
+BREAK_COLUMNS = ("method", "n_train", "axis", "break_value", "point", "kind", "gain_db", "gain_lo",
+                 "gain_hi", "oracle_gap_db", "oracle_gap_lo", "oracle_gap_hi", "psnr", "score",
+                 "undertrained", "reason")
 """Columns of ``breakpoints.csv`` (the second axis's key comes after ``n_train`` with two axes)."""
+BREAK_KINDS = ("none", "gain", "oracle", "failed", "undertrained")
+"""Values of ``kind`` in ``breakpoints.csv`` (:func:`breakpoints`)."""
 
 
-def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_DB) -> list[dict]:
+def break_test(row: dict, threshold: float = BREAK_GAIN_DB, margin: float = ORACLE_MARGIN_DB) -> tuple[str, str]:
+    """Whether a summary row (:func:`summarize`) is a break, by its intervals: ``gain`` where the
+    gain's whole interval is below ``threshold`` dB, else ``oracle`` where the oracle's lead's whole
+    interval is above ``margin`` dB, else no break (``""``); and the reason in words.
+
+    >>> break_test({"gain_db": 0.6, "gain_lo": 0.2, "gain_hi": 0.9, "oracle_gap_lo": float("nan")})[0]
+    'gain'
+    >>> break_test({"gain_db": 0.6, "gain_lo": 0.2, "gain_hi": 1.1, "oracle_gap_db": 5.0,
+    ...             "oracle_gap_lo": 3.5, "oracle_gap_hi": 6.0})
+    ('oracle', "PSNR 5.00 dB below the oracle's (95 % interval 3.50 to 6.00) > 3 dB")
+    """
+    level = f"{100 * CONFIDENCE:g} % interval"
+    if row["gain_hi"] < threshold:
+        return "gain", (f"PSNR gain over uncompensated {row['gain_db']:.2f} dB ({level} {row['gain_lo']:.2f} "
+                        f"to {row['gain_hi']:.2f}) < {threshold:g} dB")
+    if row["oracle_gap_lo"] > margin:
+        return "oracle", (f"PSNR {row['oracle_gap_db']:.2f} dB below the oracle's ({level} "
+                          f"{row['oracle_gap_lo']:.2f} to {row['oracle_gap_hi']:.2f}) > {margin:g} dB")
+    return "", ""
+
+
+def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_DB,
+                margin: float = ORACLE_MARGIN_DB) -> list[dict]:
     """Each method's break point along the study's first axis, per n_train and value of a second axis.
 
     Along the first axis's values (in the study's order), a method breaks at the first value where
-
-    - its PSNR gain over uncompensated (:func:`closed_loop_gain`) is below ``threshold`` dB, or it
-      has no score there (every run failed): ``kind`` ``gain`` or ``failed``;
-    - it falls more than :data:`OVERTAKE_MARGIN_DB` below another method (same n_train) that it
-      matched or beat at the previous value: ``kind`` ``overtaken``, ``other`` names that method.
-
-    A method that never breaks gets ``kind`` ``none`` and an empty ``break_value``. Without an axis
-    (a bench) there is nothing to break along: no rows. Where the factor sets the training size
+    it has no score (every run failed: ``kind`` ``failed``) or :func:`break_test` holds with
+    :data:`CONFIDENCE` (``gain``: gain over uncompensated below ``threshold`` dB; ``oracle``: more
+    than ``margin`` dB below the feedback oracle). A value where the test holds but a run was still
+    training at its end (``undertrained`` runs in the summary row) is no break: it is listed in
+    ``undertrained`` and the search goes on. A method that never breaks gets ``kind`` ``none``, or
+    ``undertrained`` where only such values held, and an empty ``break_value``. Without an axis (a
+    bench) there is nothing to break along: no rows. Where the factor sets the training size
     (:func:`n_train_follows`), the line runs across sizes and ``n_train`` is left empty.
 
-    >>> study = {"axes": [{"key": "blur", "values": [0, 1, 2, 3]}]}
-    >>> def row(p, m, cl):
-    ...     return {"point": p, "blur": float(p), "method": m, "n_train": 8,
-    ...             "cl_psnr_mean": cl, "cl_unc_psnr_mean": 15.0}
-    >>> s = [row(p, "a", cl) for p, cl in enumerate([25, 22, 19, 15.5])]
-    >>> s += [row(p, "b", cl) for p, cl in enumerate([24, 23, 21, 20])]
-    >>> [(b["method"], b["break_value"], b["kind"], b["other"]) for b in breakpoints(s, study)]
-    [('a', 1.0, 'overtaken', 'b'), ('b', '', 'none', '')]
-    >>> [b["break_value"] for b in breakpoints([r for r in s if r["method"] == "a"], study)]
-    [3.0]
-    >>> close = [row(p, "c", cl) for p, cl in enumerate([24.02, 22.95, 20.97, 19.96])]  # crosses b
-    >>> [(b["method"], b["kind"]) for b in breakpoints(close + s[4:], study)]  # by 0.05 dB: noise
-    [('c', 'none'), ('b', 'none')]
+    >>> study = {"axes": [{"key": "blur", "values": [0, 1, 2]}]}
+    >>> def row(p, m, gain, gap, undertrained=0):
+    ...     return {"point": p, "blur": float(p), "method": m, "n_train": 8, "cl_psnr_mean": 20.0,
+    ...             "cl_unc_psnr_mean": 20.0 - gain, "undertrained": undertrained,
+    ...             "gain_db": gain, "gain_lo": gain - 0.3, "gain_hi": gain + 0.3,
+    ...             "oracle_gap_db": gap, "oracle_gap_lo": gap - 0.5, "oracle_gap_hi": gap + 0.5}
+    >>> s = [row(0, "a", 5, 1), row(1, "a", 3, 4), row(2, "a", 0.5, 6)]
+    >>> s += [row(0, "b", 4, 2), row(1, "b", 0.5, 2, undertrained=1), row(2, "b", 0.6, 3.2)]
+    >>> [(b["method"], b["break_value"], b["kind"], b["undertrained"]) for b in breakpoints(s, study)]
+    [('a', 1.0, 'oracle', ''), ('b', 2.0, 'gain', '1')]
     """
     axes = study.get("axes", [])
     if not axes:
@@ -314,43 +439,36 @@ def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_
         by_method: dict[str, list[dict]] = {}
         for r in sorted(group, key=lambda r: order_key(r[key], listed)):
             by_method.setdefault(r["method"], []).append(r)
-        values = sorted({r[key] for r in group}, key=lambda v: order_key(v, listed))
-        psnr = {m: {r[key]: closed_loop_gain(r) for r in rs} for m, rs in by_method.items()}
-        for method in by_method:
-            found = None
-            for i, v in enumerate(values):
-                if v not in psnr[method]:
-                    continue
-                score, gain, which = psnr[method][v]
+        for method, line in by_method.items():
+            found, held = None, []
+            for r in line:
+                score, _, which = closed_loop_gain(r)
                 if not is_finite(score):
-                    found = (i, "failed", "", f"no {which} score at {key} = {cell_text(v)}: every run failed")
-                elif not gain >= threshold:
-                    found = (i, "gain", "", f"{which} PSNR gain over uncompensated {gain:.2f} dB < "
-                                            f"{threshold:g} dB")
-                elif i > 0:
-                    prev = values[i - 1]
-                    for other in by_method:
-                        if other == method or v not in psnr[other] or prev not in psnr[other] \
-                                or prev not in psnr[method]:
-                            continue
-                        o_now, o_prev = psnr[other][v][0], psnr[other][prev][0]
-                        if score < o_now - OVERTAKE_MARGIN_DB and psnr[method][prev][0] >= o_prev:
-                            found = (i, "overtaken", other, f"{which} PSNR {score:.2f} dB falls below "
-                                                            f"{other}'s {o_now:.2f} dB")
-                            break
-                if found:
+                    found = (r, "failed", f"no {which} score at {key} = {cell_text(r[key])}: every run failed")
                     break
+                kind, reason = break_test(r, threshold, margin)
+                if kind and r.get("undertrained"):
+                    held.append(r)
+                elif kind:
+                    found = (r, kind, f"{which} {reason}")
+                    break
+            first = line[0]
             row = {"method": method, "n_train": group_key[0], **dict(zip(second, group_key[1:])),
-                   "axis": key, "score": psnr[method][values[0]][2] if values[0] in psnr[method] else ""}
+                   "axis": key, "score": closed_loop_gain(first)[2],
+                   "undertrained": "; ".join(cell_text(r[key]) for r in held)}
             if found is None:
-                row.update(break_value="", point="", kind="none", other="", gain_db=float("nan"),
-                           psnr=float("nan"), reason=f"gain >= {threshold:g} dB over the whole range")
+                kind = "undertrained" if held else "none"
+                reason = (f"{len(held)} value(s) would break but runs there were still training at their end: "
+                          "undertrained, not broken" if held else
+                          f"no break: gain >= {threshold:g} dB or within {margin:g} dB of the oracle "
+                          f"with {100 * CONFIDENCE:g} % confidence")
+                row.update(break_value="", point="", kind=kind, psnr=float("nan"), reason=reason,
+                           **{f"{n}_{s}": float("nan") for n in INTERVALS for s in ("db", "lo", "hi")})
             else:
-                i, kind, other, reason = found
-                hit = next(r for r in by_method[method] if r[key] == values[i])
-                score, gain, _ = psnr[method][values[i]]
-                row.update(break_value=values[i], point=hit["point"], kind=kind, other=other,
-                           gain_db=gain, psnr=score, reason=reason)
+                hit, kind, reason = found
+                row.update(break_value=hit[key], point=hit["point"], kind=kind, psnr=closed_loop_gain(hit)[0],
+                           reason=reason, **{f"{n}_{s}": hit.get(f"{n}_{s}", float("nan"))
+                                             for n in INTERVALS for s in ("db", "lo", "hi")})
             out.append(row)
     return out
 
