@@ -452,7 +452,40 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         meta_file.unlink(missing_ok=True)  # more captures asked for: no longer finished
         write_frames(root, spec, frames)
         write_text(out / layout.SETUP_FILE, dump_setup(setup))
-        return _render(out, setup, spec, frames, fidelity, spp, expected, overwrite, progress)
+        try:
+            return _render(out, setup, spec, frames, fidelity, spp, expected, overwrite, progress)
+        except NoResponse:
+            if not (out / layout.RECORD_FILE).exists():  # nothing rendered: the corrected setup may start
+                (out / layout.SETUP_FILE).unlink(missing_ok=True)
+            raise
+
+
+MIN_RESPONSE = 2 / 255
+"""Least mean difference (encoded units) between the captures of plain white and plain black for a
+dataset to be rendered: below two 8-bit levels the captures do not depend on the projector (no
+light reaches the camera, or every pixel clips), and no method can learn from them."""
+
+
+class NoResponse(DatasetError):
+    """A setup whose captures do not respond to the projector (:func:`_check_response`)."""
+
+
+def _check_response(sim: Simulator, ref_frames: np.ndarray, name: str) -> float:
+    """The mean white − black capture difference of a setup (canonical view, encoded units).
+
+    Raises
+    ------
+    NoResponse
+        If it is below :data:`MIN_RESPONSE`, with the measured contrast.
+    """
+    probe = sim.capture(np.stack([ref_frames[0], ref_frames[layout.N_PLAIN - 1]]), seeds.RESPONSE)
+    response = float((probe[1].astype(np.float64) - probe[0]).mean()) / 255
+    if response < MIN_RESPONSE:
+        raise NoResponse(f"setup {name!r}: the captures do not respond to the projector: plain white and "
+                           f"plain black differ by {response * 255:.2f} 8-bit levels on average (at least "
+                           f"{MIN_RESPONSE * 255:.0f} needed); check the projector's brightness and mixing, "
+                           "the camera's exposure and the registration")
+    return response
 
 
 def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarray],
@@ -470,6 +503,7 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
                 raise DatasetError("; ".join(changes) + "; choose another --out or pass "
                                    "--overwrite to render it again")
             _clear(out)
+    _check_response(sim, frames[layout.REF], setup.name)
     write_json(record_file, record)
     registration_record = write_registration(out / layout.REGISTRATION_DIR, setup, sim.registration)
 

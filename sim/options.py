@@ -141,8 +141,13 @@ class Spec:
     def value(self, value: Any) -> Any:
         """``value`` checked and converted (ints to floats where numbers are expected, lists to
         tuples); raises ValueError with :meth:`expected` or the message of :attr:`check`."""
+        numbers = [value] if self.kind == "number" else (
+            [v for v in value if _is_number(v)] if self.kind == "vector" and isinstance(value, (list, tuple)) else [])
+        if any(_is_number(v) and math.isfinite(v) and not _finite(v) for v in numbers):
+            raise ValueError(f"{self.expected()}, and at most {FLOAT32_MAX:.3g} in magnitude (captures "
+                             "are computed in float32)")
         if self.kind == "number":
-            ok = _is_number(value) and math.isfinite(value) and value in self.range
+            ok = _is_number(value) and _finite(value) and value in self.range
             out = float(value) if ok else None
         elif self.kind == "integer":
             ok = _is_integer(value) and value in self.range
@@ -170,8 +175,21 @@ class Spec:
         return out
 
     def _entry(self, v: Any) -> bool:
-        ok = _is_integer(v) if self.integer else _is_number(v) and math.isfinite(v)
+        ok = _is_integer(v) if self.integer else _is_number(v) and _finite(v)
         return ok and v in self.range
+
+
+FLOAT32_MAX = 3.4028234663852886e38
+"""The largest float32: captures are computed in float32, so a larger number is not a value."""
+
+
+def _finite(value: float) -> bool:
+    """Finite in float32, the precision the renderer and the camera compute in.
+
+    >>> _finite(1e30), _finite(1e39), _finite(float("nan"))
+    (True, False, False)
+    """
+    return math.isfinite(value) and abs(value) <= FLOAT32_MAX
 
 
 def _is_number(value: Any) -> bool:

@@ -48,6 +48,9 @@ CALIBRATION = 98
 """The spaced-dot renders that calibrate a light-transport operator (index 0: one seed for all)."""
 AMBIENT = 99
 """The ambient-only image of a setup (index 0)."""
+RESPONSE = 100
+"""Captures of plain black (index 0) and plain white (index 1) that check, before a dataset is
+rendered, that its captures respond to the projector (kept in no file)."""
 TEST_TIME = (TEST,) + tuple(range(CLOSED_LOOP, EXPOSURE))
 """Streams captured at test time (test frames, closed loop and its refinement rounds): the lamp's
 ``projector.drift`` applies to them, not to the calibration captures (reference, training,

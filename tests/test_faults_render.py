@@ -398,3 +398,16 @@ def test_overwrite_repairs_a_damaged_capture_of_a_finished_setup(tmp_path, capsy
     assert procam(args) == 0 and victim.read_bytes() == good[:40]  # finished: not re-checked
     assert procam([*args, "--overwrite"]) == 0
     assert victim.read_bytes() == good
+
+
+@pytest.mark.parametrize("projector", [{"brightness": 1e-30},
+                                       {"mixing": [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]}])
+def test_captures_that_do_not_respond_to_the_projector_are_refused(tmp_path, capsys, projector):
+    """A projector whose light does not reach the camera gives captures independent of the frame:
+    refused with the measured contrast, and the corrected setup renders into the same folder."""
+    data = tmp_path / "data"
+    _refused(capsys, ["render", str(tiny_setup_file(tmp_path, projector=projector)), "--out", str(data), *ARGS],
+             "setup 'tiny': the captures do not respond to the projector", "8-bit levels on average")
+    assert not (data / "tiny" / "meta.json").exists() and not (data / "tiny" / "setup.toml").exists()
+    assert main(["render", str(tiny_setup_file(tmp_path)), "--out", str(data), *ARGS]) == 0
+    assert (data / "tiny" / "meta.json").is_file()
