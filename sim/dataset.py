@@ -37,6 +37,15 @@ from sim.layout import REF, TEST, TRAIN, image_name
 from sim.setup import Setup, dump_setup, load_setup
 from sim.variant import choose_variant
 
+MAX_SIDE = 4096
+"""Largest canonical side in pixels (the projector panels procam models are at most 4096 wide)."""
+
+
+def _memory() -> int:
+    """This machine's physical memory in bytes."""
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
 @dataclass(frozen=True)
 class FrameSpec:
     """How a root's shared projector frames are made.
@@ -67,14 +76,22 @@ class FrameSpec:
     images_dir: str | None = None
 
     def __post_init__(self):
-        for name, option, value, least in (("n_train", "--n-train", self.n_train, 1),
-                                           ("n_test", "--n-test", self.n_test, 1),
-                                           ("seed", "--frame-seed", self.seed, 0),
-                                           ("width", "--size", self.size[0], 1),
-                                           ("height", "--size", self.size[1], 1)):
-            if not isinstance(value, (int, np.integer)) or value < least:
+        for name, option, value, least, most in (("n_train", "--n-train", self.n_train, 1, None),
+                                                 ("n_test", "--n-test", self.n_test, 1, None),
+                                                 ("seed", "--frame-seed", self.seed, 0, 2 ** 32 - 1),
+                                                 ("width", "--size", self.size[0], 1, MAX_SIDE),
+                                                 ("height", "--size", self.size[1], 1, MAX_SIDE)):
+            if (not isinstance(value, (int, np.integer)) or value < least
+                    or (most is not None and value > most)):
                 raise DatasetError(f"projector frames: {name} ({option}) = {value!r}: expected an "
-                                   f"integer >= {least}")
+                                   f"integer >= {least}" + (f" and <= {most}" if most is not None else ""))
+        frames = layout.N_PLAIN + 1 + self.n_train + self.n_test
+        need = frames * self.size[0] * self.size[1] * 3
+        if need > (limit := _memory() // 2):
+            raise DatasetError(f"projector frames: {frames} frames of {self.size[0]}x{self.size[1]} "
+                               f"(--n-train {self.n_train}, --n-test {self.n_test}, --size) take "
+                               f"{need / 2**30:.1f} GiB in memory; at most {limit / 2**30:.1f} GiB, half "
+                               "of this machine's memory, can be held")
 
     def source(self) -> dict:
         """What identifies the frames (counts excluded: a larger run extends a smaller one)."""

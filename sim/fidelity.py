@@ -32,6 +32,7 @@ from sim.errors import SetupError
 from sim.io import to_uint8
 from sim.render import Renderer
 from sim.setup import Setup
+from sim.setup.schema import MAX_SPP
 
 LEVELS = ("path", "direct", "transport")
 """The rendering levels, most accurate first."""
@@ -102,10 +103,11 @@ def check_level(setup: Setup, level: str) -> None:
 
 
 def check_spp(setup: Setup, spp: int | None) -> None:
-    """Raise :class:`SetupError` unless ``spp`` (an override of ``render.spp``) is None or >= 1."""
-    if spp is not None and spp < 1:
+    """Raise :class:`SetupError` unless ``spp`` (an override of ``render.spp``) is None or in
+    1..:data:`~sim.setup.schema.MAX_SPP`."""
+    if spp is not None and not 1 <= spp <= MAX_SPP:
         raise SetupError(f"setup {setup.name!r}: spp (--spp) = {spp}: expected samples per pixel "
-                         ">= 1")
+                         f"from 1 to {MAX_SPP} (as render.spp)")
 
 
 def with_depth(setup: Setup, max_depth: int | None) -> Setup:

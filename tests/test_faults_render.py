@@ -163,11 +163,27 @@ BAD_INPUTS = {
     "--n-train -5": (lambda t: [str(tiny_setup_file(t)), "--n-train", "-5"], ["--n-train", "-5", ">= 1"]),
     "--n-test 0": (lambda t: [str(tiny_setup_file(t)), "--n-test", "0"], ["--n-test", "0", ">= 1"]),
     "--frame-seed -1": (lambda t: [str(tiny_setup_file(t)), "--frame-seed", "-1"], ["--frame-seed", "-1"]),
-    "--spp 0": (lambda t: [str(tiny_setup_file(t)), "--spp", "0"], ["--spp", "= 0", ">= 1"]),
+    "--spp 0": (lambda t: [str(tiny_setup_file(t)), "--spp", "0"], ["--spp", "= 0", "from 1 to 65536"]),
     "--fidelity direct on a corner": (lambda t: ["corner", "--fidelity", "direct"],
                                       ['fidelity "direct"', "inter-reflection"]),
     "setup file not UTF-8": (lambda t: _latin1_setup(t), ["latin.toml", "not valid TOML"]),
+    "--size 100000": (lambda t: [str(tiny_setup_file(t)), "--size", "100000"], ["--size", "100000", "<= 4096"]),
+    "--n-train 1e9": (lambda t: [str(tiny_setup_file(t)), "--n-train", "1000000000"],
+                      ["--n-train 1000000000", "GiB in memory", "half of this machine's memory"]),
+    "--spp 1e9": (lambda t: [str(tiny_setup_file(t)), "--spp", "1000000000"], ["--spp", "from 1 to 65536"]),
+    "--frame-seed 2**40": (lambda t: [str(tiny_setup_file(t)), "--frame-seed", str(2 ** 40)],
+                           ["--frame-seed", "<= 4294967295"]),
+    "render.max_depth 2**63-1": (lambda t: [str(tiny_setup_file(t, render={"max_depth": 2 ** 63 - 1}))],
+                                 ["render.max_depth", "in [2, 64]"]),
+    "render.seed 2**62": (lambda t: [str(_big_seed(t))], ["render.seed", "in [0, 4.29497e+09]"]),
 }
+
+
+def _big_seed(folder):
+    """A setup file whose render seed does not fit 32 bits (TOML integers stop at 64 bits)."""
+    path = tiny_setup_file(folder)
+    path.write_text(path.read_text().replace("[render]", f"[render]\nseed = {2 ** 62}"))
+    return path
 
 
 @pytest.mark.parametrize("case", BAD_INPUTS)

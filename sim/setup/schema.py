@@ -21,6 +21,10 @@ from sim.options import (NON_NEGATIVE, POSITIVE, UNIT, Range, choice, combine, i
                          string, variant, vector)
 from sim.projector import chain as projector_chain
 
+SEED_MAX = 2 ** 32 - 1
+"""Largest seed a setup takes (Mitsuba's sampler seeds are 32-bit)."""
+MAX_SPP = 65536
+"""Most samples per pixel of a render."""
 NAME_PATTERN = "[A-Za-z0-9_-]+"
 """Setup names (used as dataset folder names)."""
 TEMPERATURE_RANGE = (1000.0, 25000.0)
@@ -43,7 +47,7 @@ class SurfaceConfig:
     texture: str = string("brick")
     """``"uniform"``, a generator kind of :data:`sim.images.SURFACE_KINDS`, or the absolute path of
     an image file (a relative path in a setup file is relative to that file)."""
-    texture_seed: int = integer(0, NON_NEGATIVE)
+    texture_seed: int = integer(0, Range(0, SEED_MAX))
     """Seed (>= 0) of the texture generator (see :mod:`sim.seeds`)."""
     texture_resolution: int = integer(512, Range(16, 4096), "pixels")
     """Pixels along the longest side of the albedo texture, 16..4096."""
@@ -138,14 +142,16 @@ class RenderConfig:
     """``"auto"`` (measured: the cheapest level, and spp, whose error is below the camera's noise;
     see :mod:`sim.fidelity`), ``"path"``, ``"direct"`` or ``"transport"`` (a light-transport
     operator calibrated from direct renders at ``spp``)."""
-    spp: int = integer(16, Range(1, 65536))
+    spp: int = integer(16, Range(1, MAX_SPP))
     """Samples per pixel of the projector contribution, 1..65536."""
-    ambient_spp: int = integer(256, Range(1, 65536))
+    ambient_spp: int = integer(256, Range(1, MAX_SPP))
     """Samples per pixel of the ambient-only image (rendered once per setup), 1..65536."""
-    max_depth: int = integer(3, Range(2))
-    """Path depth for path tracing (>= 2; a corner needs >= 3 for its inter-reflection)."""
-    seed: int = integer(0, NON_NEGATIVE)
-    """Seed base (>= 0) of the Mitsuba sampler and of the camera noise (see :mod:`sim.seeds`)."""
+    max_depth: int = integer(3, Range(2, 64))
+    """Path depth for path tracing, 2..64 (a corner needs >= 3 for its inter-reflection; past 64
+    bounces no surface of albedo <= 1 keeps light a camera could see)."""
+    seed: int = integer(0, Range(0, SEED_MAX))
+    """Seed base (0..2³²−1: Mitsuba's sampler seed is 32-bit) of the Mitsuba sampler and of the
+    camera noise (see :mod:`sim.seeds`)."""
 
 
 REGISTRATION_METHODS = ("auto", "homography", "exact")
