@@ -164,6 +164,10 @@ def test_report_of_the_closed_loop_bench(bench, capsys):
         tps = summary[("tps", n)]
         assert float(tps["cl_psnr_mean"]) > float(tps["cl_unc_psnr_mean"]) + CLOSED_LOOP_MARGIN_DB
         assert float(tps["infer_ms_mean"]) > 0
+        # the gain's interval comes from per_image.csv, joined to the Table 1 runs by table and variant
+        assert 0 < float(tps["gain_lo"]) < float(tps["gain_db"]) < float(tps["gain_hi"])  # several samples
+    images = [r for r in csv_rows(out / "per_image.csv") if r["table"] == "1" and r["method"] == "tps"]
+    assert images and all(float(r["cl_psnr"]) > 0 and float(r["oracle_psnr"]) > 0 for r in images)
 
 
 def test_resume_trains_nothing_and_failures_are_isolated(bench, monkeypatch):
