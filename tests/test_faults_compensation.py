@@ -70,6 +70,23 @@ def test_train_out_at_an_existing_file(setup_dir, tmp_path, capsys):
     assert target.read_text() == "not a run"
 
 
+def test_train_overwrite_never_deletes_files_a_run_did_not_write(setup_dir, tmp_path, capsys):
+    """--overwrite replaces a run, not a folder of the user's that happens to hold a metrics.json;
+    a real run (with its closed-loop captures) is still replaced."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "metrics.json").write_text("{}")
+    (mine / "thesis.tex").write_text("years of work")
+    _fails(capsys, ["train", str(setup_dir), "--method", "nayar", "--out", str(mine), "--overwrite", *TRAIN],
+           str(mine), "thesis.tex", "which no run writes")
+    assert (mine / "thesis.tex").read_text() == "years of work"
+    run = tmp_path / "run"
+    assert main(["train", str(setup_dir), "--method", "nayar", "--out", str(run), *TRAIN]) == 0
+    (run / "closed_loop").mkdir()
+    assert main(["train", str(setup_dir), "--method", "tps", "--out", str(run), "--overwrite", *TRAIN]) == 0
+    assert (run / "tps.npz").is_file() and not (run / "nayar.npz").exists()
+
+
 def test_train_out_that_cannot_be_created_fails_before_training(setup_dir, tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("")

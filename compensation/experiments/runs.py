@@ -27,7 +27,8 @@ import torch
 
 from compensation.data import load_setup_data, surface_path, to_tensor
 from compensation.experiments.targets import IDENTITY, TargetPolicy, map_record, map_targets
-from compensation.methods import check_config, get_method
+from compensation.experiments.closed_loop import CAPTURES_DIR
+from compensation.methods import METHODS, check_config, get_method
 from compensation.methods.base import Method, load_state, resolve_device
 from compensation.scores.metrics import evaluate, psnr_per_image
 from compensation.training.config import TrainConfig
@@ -114,7 +115,15 @@ def example_grid(surface: torch.Tensor, captures: torch.Tensor, predicted: torch
     return to_uint8(grid)
 
 
+RUN_ENTRIES = ("config.json", "loss.csv", "loss.png", "metrics.json", "examples.png", CHECKPOINT_FILE,
+               CAPTURES_DIR)
+"""What a run directory holds besides its method's state file (``Method.state_file``)."""
+
+
 def _check_out_dir(out_dir: Path, overwrite: bool) -> None:
+    """Refuse an output that is not a run this command may replace: a file, a finished run without
+    ``overwrite``, a folder that is not a run, or a run folder holding anything a run does not
+    write (the user's own files are never deleted)."""
     if out_dir.exists() and not out_dir.is_dir():
         raise ProcamError(f"{out_dir}: exists and is a file; a run directory is a folder")
     if out_dir.exists() and not overwrite:
@@ -123,6 +132,12 @@ def _check_out_dir(out_dir: Path, overwrite: bool) -> None:
     if out_dir.exists() and not (out_dir / "metrics.json").exists():
         raise ProcamError(f"{out_dir}: exists and is not a run directory (no metrics.json); "
                           "refusing to replace it")
+    if out_dir.exists():
+        known = {*RUN_ENTRIES, *(m.state_file for m in METHODS.values())}
+        if foreign := sorted(p.name for p in out_dir.iterdir() if p.name not in known):
+            raise ProcamError(f"{out_dir}: holds {', '.join(foreign[:5])}{' …' if len(foreign) > 5 else ''}, "
+                              "which no run writes; refusing to replace it (move those files or choose "
+                              "another output)")
 
 
 def partial_dir(out_dir: Path) -> Path:

@@ -208,6 +208,8 @@ class Method(abc.ABC):
     official_name: ClassVar[str]
     """The model's name in the official CompenNet code's output folders and the paper's tables
     (``CompenNet``, ``TPS_textured``, …): no spaces or slashes."""
+    state_file: ClassVar[str] = CHECKPOINT
+    """The file of a run directory :meth:`save` writes the fitted state to."""
     plain_colours: ClassVar[bool] = False
     """The method fits the 125 plain-colour pairs of ``ref`` whatever the number of training pairs
     (TPS, Nayar); its official tag then names 125."""

@@ -226,6 +226,7 @@ class NayarMethod(Method):
     name = "nayar"
     official_name = "Nayar"
     options = NoOptions
+    state_file = STATE_FILE
     plain_colours = True
 
     def __init__(self, device: str = "auto"):

@@ -387,6 +387,7 @@ class TPSMethod(Method):
     name = "tps"
     official_name = "TPS"
     options = TPSOptions
+    state_file = STATE_FILE
     plain_colours = True
 
     def __init__(self, device: str = "auto"):
