@@ -343,6 +343,11 @@ def test_load_refuses_pickles_and_bad_shapes(name, tmp_path):
     np.savez(path, **arrays)
     with pytest.raises(ProcamError, match="inconsistent shapes"):
         get_method(name).load(tmp_path, "cpu")
+    whole = path.read_bytes()
+    for damaged in (whole[:len(whole) // 2], b"PK\x03\x04" + b"\0" * 40, b""):  # cut, broken zip, empty
+        path.write_bytes(damaged)
+        with pytest.raises(ProcamError, match=re.escape(f"{path}: cannot read")):
+            get_method(name).load(tmp_path, "cpu")
 
 
 def test_predict_checks_the_image_size(data):

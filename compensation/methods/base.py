@@ -11,6 +11,7 @@ from __future__ import annotations
 import abc
 import pickle
 import re
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
@@ -116,7 +117,7 @@ def load_arrays(path: Path, keys: tuple[str, ...], what: str) -> dict[str, np.nd
             return {k: f[k] for k in keys}
     except KeyError as exc:
         raise ProcamError(f"{path}: missing array {exc}; expected {', '.join(keys)}") from None
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise ProcamError(f"{path}: cannot read {what} ({exc})") from None
 
 
