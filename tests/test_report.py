@@ -375,3 +375,22 @@ def test_axis_on_n_train_round_trip(tmp_path):
     back = read_results(results, ["n_train"])
     assert [r["n_train"] for r in back] == [8, 16] and abs(back[0]["fit_s"] - 0.123457) < 1e-9
     assert json.loads((tmp_path / "study.json").read_text())["versions"]["python"]
+
+
+def test_a_damaged_results_table_is_refused_and_named(tmp_path):
+    """Cut short (a truncated 0.483852 must not read as 0), not UTF-8, or a row of another width."""
+    from compensation.experiments.jobs import write_results
+    from compensation.reports.summary import read_results
+
+    rows = [{"point": 0, "setup": "s", "method": "tps", "n_train": 8, "seed": 0, "status": "ok",
+             "cl_psnr": 20.483852, "cl_unc_psnr": 17.0}]
+    path = write_results(tmp_path, [], rows)
+    whole = path.read_bytes()
+    assert read_results(path, [])[0]["cl_psnr"] == pytest.approx(20.4839, abs=1e-4)
+    cut = whole.rstrip(b"\r\n")
+    for damaged, message in ((cut[:cut.rindex(b".") + 1], "cut short"),
+                             (whole + b"\xff\xfe\n", "not UTF-8"),
+                             (whole + b"0,s,tps\r\n", "line 3: ")):
+        path.write_bytes(damaged)
+        with pytest.raises(ProcamError, match=re.escape(f"{path}") + ".*" + re.escape(message)):
+            read_results(path, [])

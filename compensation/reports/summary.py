@@ -117,15 +117,21 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
     Raises
     ------
     ProcamError
-        If the file is missing, or a required column or axis column is absent, or a cell of
+        If the file is missing, not UTF-8 or cut short (its last line unfinished), or a required
+        column or axis column is absent, or a row has more or fewer cells than the header, or a cell of
         ``point``, ``n_train``, ``seed`` is not an integer, or a ``status`` is unknown; the message
         names the file, the row and the column.
     """
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ProcamError(f"{path}: results table not found") from None
+    except UnicodeDecodeError as exc:
+        raise ProcamError(f"{path}: not a results table (not UTF-8 text: byte {exc.start})") from None
+    if text and not text.endswith("\n"):  # every row procam writes ends its line
+        raise ProcamError(f"{path}: cut short (its last line is unfinished); run the study or bench "
+                          "again to write it whole")
     reader = csv.DictReader(io.StringIO(text))
     header = reader.fieldnames or []
     missing = [c for c in ("point", *axes, "setup", "method", "n_train", "seed", "status") if c not in header]
@@ -133,6 +139,9 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
         raise ProcamError(f"{path}: missing column(s) {', '.join(missing)}")
     rows = []
     for line, raw in enumerate(reader, start=2):
+        if None in raw or None in raw.values():
+            raise ProcamError(f"{path}, line {line}: {len(header)} columns in the header, another number "
+                              "in this row")
         row = dict(raw)
         for key in ("point", "n_train", "seed"):
             try:
