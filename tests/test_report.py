@@ -394,3 +394,17 @@ def test_a_damaged_results_table_is_refused_and_named(tmp_path):
         path.write_bytes(damaged)
         with pytest.raises(ProcamError, match=re.escape(f"{path}") + ".*" + re.escape(message)):
             read_results(path, [])
+
+
+def test_a_folder_where_every_run_failed_still_gets_its_report(tmp_path):
+    """No score to draw: no study chart, but the page with its failures (not a traceback)."""
+    from compensation.experiments.jobs import write_results, write_study_record
+
+    write_study_record(tmp_path, {"name": "t", "kind": "study", "methods": ["tps"], "seeds": [0],
+                                  "axes": [{"key": "ambient.radiance", "values": [0.1, 0.2]}]})
+    write_results(tmp_path, ["ambient.radiance"],
+                  [{"point": p, "ambient.radiance": v, "setup": f"s{p}", "method": "tps", "n_train": 8,
+                    "seed": 0, "status": "failed", "error": "simulated"} for p, v in enumerate((0.1, 0.2))])
+    page = build_report(tmp_path).read_text()
+    assert "Failures (2)" in page and "simulated" in page
+    assert not list((tmp_path / "charts").glob("study*.png"))

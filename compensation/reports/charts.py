@@ -432,6 +432,12 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9.=+-]+", "_", text)
 
 
+def _scored(summary: list[dict]) -> bool:
+    """Whether any row holds a finite score of a panel the study chart draws."""
+    return any(is_finite(r.get(f"{p}{m}_mean", math.nan))
+               for r in summary for m, _ in PANELS for p, *_ in SCOPES)
+
+
 def write_charts(folder: Path, study: dict, summary: list[dict], breaks: list[dict],
                  fails: list[dict]) -> list[Path]:
     """Draw every chart of a folder into ``folder/charts``: the study and gain charts (one each per
@@ -457,6 +463,8 @@ def write_charts(folder: Path, study: dict, summary: list[dict], breaks: list[di
             stem = "study" + "".join(f"_{k}={v:g}" if is_finite(v) else f"_{k}={v}" for k, v in zip(second, values))
             match = lambda r: all(r.get(k) == v for k, v in zip(second, values))  # noqa: E731
             heading = f"{name}" + (f" ({where})" if where else "")
+            if not _scored(group):  # every run of these points failed: nothing to draw
+                continue
             out.append(draw_study(group, [b for b in breaks if match(b)], [f for f in fails if match(f)],
                                   first, charts / _slug(stem), heading)[0])
             if any(is_finite(r.get("gain_db", math.nan)) for r in group):
