@@ -513,7 +513,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``procam`` console script; user errors exit with status 2.
 
     A file-system error that no command turned into a :class:`ProcamError` (a full disk, a folder
-    that cannot be written) is reported the same way, naming the file, instead of a traceback.
+    that cannot be written) is reported the same way, naming the file, instead of a traceback;
+    Ctrl-C ends with status 130 and a line saying that a rerun goes on.
     """
     args = build_parser().parse_args(argv)
     try:
@@ -525,6 +526,10 @@ def main(argv: list[str] | None = None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"procam: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("procam: interrupted; what is finished is kept: run the same command again to go on",
+              file=sys.stderr)
+        return 130
     return 0
 
 

@@ -427,3 +427,15 @@ def test_captures_that_do_not_respond_to_the_projector_are_refused(tmp_path, cap
     assert not (data / "tiny" / "meta.json").exists() and not (data / "tiny" / "setup.toml").exists()
     assert main(["render", str(tiny_setup_file(tmp_path)), "--out", str(data), *ARGS]) == 0
     assert (data / "tiny" / "meta.json").is_file()
+
+
+def test_ctrl_c_ends_with_a_line_not_a_traceback(tmp_path, capsys, monkeypatch):
+    import sim.dataset
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sim.dataset, "write_setup", interrupted)
+    assert main(["render", str(tiny_setup_file(tmp_path)), "--out", str(tmp_path / "data"), *ARGS]) == 130
+    err = capsys.readouterr().err
+    assert "procam: interrupted" in err and "run the same command again" in err and "Traceback" not in err
