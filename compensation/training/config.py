@@ -94,9 +94,11 @@ class TrainConfig:
     profile: str = "paper"
     """Profile the values came from (``paper`` or ``quick``); recorded only."""
     n_train: int | None = 500
-    """Use the first n training pairs (>= 1); None uses all of them."""
+    """Use the first n training pairs (>= 1); not given on the command line, the profile's count
+    (quick 250, paper 500); None in a configuration uses all of them."""
     n_test: int | None = 200
-    """Use the first n test pairs (>= 1); None uses all of them."""
+    """Use the first n test pairs (>= 1); not given on the command line, the profile's count
+    (quick 100, paper 200); None in a configuration uses all of them."""
     seed: int = 0
     """Seeds initialisation, batch order and any sampling of the method (paper 0)."""
     device: str = "auto"
