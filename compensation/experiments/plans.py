@@ -151,8 +151,8 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
                       pretrained=r.after is not None, progress=progress, target=scoring.target)
 
     fitted: dict[str, dict] = {}
-    stages = [[r for r in plan.runs if r.run in {q.after for q in plan.runs}],
-              [r for r in plan.runs if r.run not in {q.after for q in plan.runs}]]
+    first = {r.after for r in plan.runs if r.after is not None}  # runs others start from
+    stages = [[r for r in plan.runs if r.run in first], [r for r in plan.runs if r.run not in first]]
     for stage in stages:
         unique: dict[str, FitJob] = {}
         for r in stage:
