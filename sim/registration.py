@@ -275,13 +275,43 @@ def homography_map(hom: np.ndarray, size: tuple[int, int], camera_resolution: tu
 
 
 def homography_error(hom: np.ndarray, wmap: WarpMap) -> dict:
-    """Distance (camera pixels) between the homography's and the exact map's camera positions.
+    """How far the homography's registration is from the exact map, over the exactly visible
+    canonical pixels.
 
-    Returns a dict with ``mean_px``, ``max_px`` over the visible canonical pixels.
+    Parameters
+    ----------
+    hom : numpy.ndarray
+        3×3 camera → canonical homography.
+    wmap : WarpMap
+        The exact map (:func:`exact_map`).
+
+    Returns
+    -------
+    dict
+        ``mean_px`` and ``max_px``: camera pixels between where the homography and the exact map
+        find each canonical pixel; ``canonical_px``: the misregistration in canonical pixels —
+        the distance between a canonical pixel's centre and where the homography sends the camera
+        position that truly shows it — as ``mean``, ``p95`` (95th percentile) and ``max``. A
+        plane seen through distortion-free lenses gives ~0 (the corners' noise aside); relief and
+        lens distortion give what one homography cannot follow.
+
+    Examples
+    --------
+    >>> xy = np.array([[[1.5, 0.5], [2.5, 0.5]]], np.float32)  # one row of two canonical pixels
+    >>> shift = np.array([[1.0, 0, -1], [0, 1, 0], [0, 0, 1]])  # canonical x = camera x - 1
+    >>> homography_error(shift, WarpMap(xy, np.ones((1, 2), bool)))["canonical_px"]
+    {'mean': 0.0, 'p95': 0.0, 'max': 0.0}
+    >>> homography_error(np.eye(3), WarpMap(xy, np.ones((1, 2), bool)))["canonical_px"]["max"]
+    1.0
     """
     h, w = wmap.mask.shape
     d = np.linalg.norm(_camera_positions(hom, (w, h)) - wmap.xy, axis=-1)[wmap.mask]
-    return {"mean_px": float(d.mean()), "max_px": float(d.max())}
+    cam = np.concatenate([wmap.xy.astype(np.float64), np.ones((h, w, 1))], axis=-1) @ np.asarray(hom, float).T
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    c = np.linalg.norm(cam[..., :2] / cam[..., 2:] - np.stack([u, v], axis=-1), axis=-1)[wmap.mask]
+    return {"mean_px": float(d.mean()), "max_px": float(d.max()),
+            "canonical_px": {"mean": round(float(c.mean()), 6), "p95": round(float(np.percentile(c, 95)), 6),
+                             "max": round(float(c.max()), 6)}}
 
 
 def resolve_method(setup: Setup) -> str:
@@ -323,7 +353,9 @@ class Registration:
         (the setup's), ``jitter``, ``visible_fraction`` (of the map used) and
         ``exact_visible_fraction``, and ``homography``: ``status`` and, when estimated, its
         ``matrix`` (camera → canonical, pixel centres at integer + 0.5) and its distance to the
-        exact map, ``mean_px`` and ``max_px`` (camera pixels over the exactly visible pixels)."""
+        exact map (:func:`homography_error`): ``mean_px`` and ``max_px`` in camera pixels, and the
+        residual misregistration ``canonical_px`` (mean, 95th percentile, max) in canonical
+        pixels."""
         hom: dict = {"status": self.status}
         if self.homography is not None:
             hom.update(matrix=self.homography.tolist(), **homography_error(self.homography, self.exact))

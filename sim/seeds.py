@@ -7,7 +7,8 @@ never share samples or noise. The capture streams below keep the users of the si
 
 The image generator (:mod:`sim.images`) draws from its own generators: projector frame ``i`` of
 ``projector_frames(count, size, seed, stream)`` from ``(FRAME_TAG, seed, stream, i)``, a surface
-texture from ``(SURFACE_TAG, texture_seed, kind index)``; the probe frames of :mod:`sim.fidelity`
+texture from ``(SURFACE_TAG, texture_seed, kind index)``, a surface's relief from
+``(RELIEF_TAG, relief_seed)``; the probe frames of :mod:`sim.fidelity`
 from ``(render.seed, class index)``.
 
 Changing any value here changes every dataset rendered afterwards.
@@ -15,6 +16,9 @@ Changing any value here changes every dataset rendered afterwards.
 from __future__ import annotations
 
 import numpy as np
+
+SEED_MAX = 2 ** 32 - 1
+"""Largest seed a setup takes (Mitsuba's sampler seeds are 32-bit)."""
 
 # ------------------------------------------------------------------------- capture streams
 
@@ -68,6 +72,10 @@ TEST_FRAMES = 1
 """Image-generator stream of a dataset's test frames."""
 PROBE_FRAMES = 7
 """Image-generator stream of the ``natural`` probe frame (seed: the setup's ``render.seed``)."""
+
+RELIEF_TAG = 4
+"""First seed word of a surface's random relief, ``(RELIEF_TAG, relief_seed)``
+(:mod:`sim.surfaces.relief`)."""
 
 LAMP_TAG = 3
 """Last seed word of a capture's lamp flicker (:func:`lamp_rng`): never shares a state with its

@@ -370,7 +370,8 @@ def test_a_surface_key_is_refused_for_a_surface_that_does_not_take_it(tmp_path):
         load_setup(path)
     assert str(err.value).startswith(
         f'{path}: surface.corner_angle = 60.0: not a key of surface.geometry = "plane" (only of '
-        '"corner"); valid keys of [surface]: albedo_scale, geometry, material, roughness, size, ')
+        '"corner"); valid keys of [surface]: albedo_scale, bow, geometry, material, relief, '
+        'relief_length, relief_seed, roughness, size, ')
     assert "corner_angle" not in str(err.value).split("valid keys")[1]
     corner = parse_setup({"name": "c", "surface": {"geometry": "corner", "corner_angle": 60}})
     assert corner.surface.shape.corner_angle == 60.0 and type(corner.surface.shape.corner_angle) is float
@@ -381,7 +382,8 @@ def test_a_surface_key_is_refused_for_a_surface_that_does_not_take_it(tmp_path):
 
 def test_unknown_surface_key_lists_every_surface_key():
     with pytest.raises(SetupError, match=r"surface\.angle: unknown key; valid keys of \[surface\]: "
-                                         r"albedo_scale, corner_angle, geometry, "):
+                                         r"albedo_scale, bow, corner_angle, geometry, material, "
+                                         r"relief, relief_length, relief_seed, "):
         parse_setup({"name": "c", "surface": {"angle": 60}})
 
 

@@ -20,9 +20,8 @@ from sim.camera import chain as camera_chain
 from sim.options import (NON_NEGATIVE, POSITIVE, UNIT, Range, choice, combine, integer, number,
                          string, variant, vector)
 from sim.projector import chain as projector_chain
+from sim.seeds import SEED_MAX
 
-SEED_MAX = 2 ** 32 - 1
-"""Largest seed a setup takes (Mitsuba's sampler seeds are 32-bit)."""
 MAX_SPP = 65536
 """Most samples per pixel of a render."""
 NAME_PATTERN = "[A-Za-z0-9_-]+"
