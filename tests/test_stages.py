@@ -14,11 +14,12 @@ import pytest
 from helpers import tiny_setup
 
 import sim
-from sim import camera, projector, seeds
+from sim import camera, projector, scatter, seeds
 from sim.camera import chain as camera_chain
 from sim.camera.noise import stream_version
 from sim.options import number
 from sim.projector import chain as projector_chain
+from sim.projector import distortion, translucency
 from sim.setup import CameraConfig, ProjectorConfig
 from sim.setup.schema import CameraView, ProjectorView
 from sim.stages import Stage, streams_version, switch_off
@@ -113,7 +114,7 @@ except SetupError as exc:
     assert str(exc) == "t.toml: camera.gain = -1: expected a number > 0", exc
 else:
     raise AssertionError("gain = -1 accepted")
-assert [s.name for s in camera.STAGES if s.linear][3] == "gain"
+assert [s.name for s in camera.STAGES if s.linear][4] == "gain"
 rad = np.random.default_rng(0).uniform(0, 0.4, (16, 24, 3)).astype(np.float32)
 doubled = camera.capture(rad, setup.camera, np.random.default_rng(1))
 plain = camera.capture(2 * rad, replace(setup.camera, gain=1.0), np.random.default_rng(1))
@@ -130,8 +131,8 @@ def test_a_new_camera_stage_is_one_module_and_one_line_in_the_chain(tmp_path):
     (tmp_path / "sim" / "camera" / "gain.py").write_text(GAIN_STAGE)
     chain_file = tmp_path / "sim" / "camera" / "chain.py"
     text = chain_file.read_text()
-    for old, new in (("from sim.camera import optics, raw, sensor\n",
-                      "from sim.camera import gain, optics, raw, sensor\n"),
+    for old, new in (("from sim.camera import glare, optics, raw, sensor\n",
+                      "from sim.camera import gain, glare, optics, raw, sensor\n"),
                      ("    optics.VIGNETTING,\n", "    optics.VIGNETTING,\n    gain.GAIN,\n")):
         assert text.count(old) == 1
         text = text.replace(old, new)
@@ -143,14 +144,14 @@ def test_a_new_camera_stage_is_one_module_and_one_line_in_the_chain(tmp_path):
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-3000:]
 
 
-HARDWARE = replace(CameraConfig(), resolution=(48, 32), psf_sigma=0.7, distortion=-0.05,
+HARDWARE = replace(CameraConfig(), resolution=(48, 32), psf_sigma=0.7, glare=0.02, distortion=-0.05,
                    vignetting=0.3, bayer="RGGB", jpeg_quality=90, white_balance=(1.1, 1.0, 0.9),
                    shot_noise=1e-3, read_noise=2e-3)
 
 
 def test_the_optical_stages_are_what_the_fidelity_probe_switches_off():
-    assert [s.name for s in camera.STAGES if s.optical] == ["psf", "distortion", "vignetting"]
-    assert camera.without_optics(HARDWARE) == replace(HARDWARE, psf_sigma=0.0, distortion=0.0,
+    assert [s.name for s in camera.STAGES if s.optical] == ["psf", "glare", "distortion", "vignetting"]
+    assert camera.without_optics(HARDWARE) == replace(HARDWARE, psf_sigma=0.0, glare=0.0, distortion=0.0,
                                                       vignetting=0.0)
     rad = np.random.default_rng(1).uniform(0, 1, (32, 48, 3)).astype(np.float32)
     assert camera.apply_optics(rad, camera.without_optics(HARDWARE)) is rad
@@ -163,8 +164,9 @@ def test_the_noise_version_is_the_random_stages():
 
 def _linear_camera_stage(name: str):
     """The code of each camera stage flagged linear, alone."""
-    only = {k: 0.0 for k in ("psf_sigma", "distortion", "vignetting")}
-    optics = {"psf": {"psf_sigma": 0.7}, "distortion": {"distortion": -0.05}, "vignetting": {"vignetting": 0.3}}
+    only = {k: 0.0 for k in ("psf_sigma", "glare", "distortion", "vignetting")}
+    optics = {"psf": {"psf_sigma": 0.7}, "glare": {"glare": 0.02}, "distortion": {"distortion": -0.05},
+              "vignetting": {"vignetting": 0.3}}
     if name in optics:
         cfg = replace(HARDWARE, **{**only, **optics[name]})
         return lambda x: camera.apply_optics(x, cfg)
@@ -177,7 +179,7 @@ def test_stages_flagged_linear_are_linear():
     rng = np.random.default_rng(2)
     x, y = (rng.uniform(0, 0.5, (32, 48, 3)).astype(np.float32) for _ in range(2))
     linear = [s.name for s in camera.STAGES if s.linear]
-    assert linear == ["psf", "distortion", "vignetting", "exposure", "mosaic", "white_balance"]
+    assert linear == ["psf", "glare", "distortion", "vignetting", "exposure", "mosaic", "white_balance"]
     for name in linear:
         f = _linear_camera_stage(name)
         np.testing.assert_allclose(f(0.3 * x + 0.5 * y), 0.3 * f(x) + 0.5 * f(y), atol=1e-6, err_msg=name)
@@ -217,7 +219,8 @@ def test_projector_stages_after_the_lens_are_linear():
     names = [s.name for s in projector.STAGES]
     assert names[:5] == ["scaler", "response", "mixing", "psf", "defocus"]
     assert all(s.linear for s in projector.STAGES[names.index("defocus") + 1:])
-    assert [s.name for s in projector.STAGES if s.optical] == ["psf", "defocus"]
+    assert [s.name for s in projector.STAGES if s.optical] == ["psf", "defocus", "distortion",
+                                                                "translucency", "flare"]
 
 
 def test_projector_stages_flagged_linear_are_linear():
@@ -229,6 +232,10 @@ def test_projector_stages_flagged_linear_are_linear():
     mix = ((1.0, 0.1, 0.0), (0.1, 1.0, 0.1), (0.0, 0.1, 1.0))
     code = {"mixing": lambda v: projector.emitted_irradiance(v, 1.0, 0.0, mix),  # response off
             "psf": lens.apply, "defocus": lens.apply,
+            # the stages after the lens, on its output
+            "distortion": lambda v: distortion.distort(lens.apply(v), lens, 0.05, -0.01, 0.5),
+            "translucency": lambda v: translucency.translucent(lens.apply(v), lens, 2.0, 0.7),
+            "flare": lambda v: scatter.veil(lens.apply(v), 0.1, 6.0),
             "brightness": lambda v: 1.3 * v,  # the emitter's scale: Mitsuba's light is linear in it
             "lamp": lambda v: projector.lamp_gain(replace(setup.projector, flicker=0.1, drift=0.05),
                                                   0, seeds.TEST, 1) * v}

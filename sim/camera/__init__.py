@@ -2,7 +2,8 @@
 linear radiance.
 
 :func:`capture` is the whole camera: the chain of :data:`~sim.camera.chain.CHAIN` in order
-(optical PSF, lens distortion, vignetting (:mod:`~sim.camera.optics`); the sensor
+(optical PSF, veiling glare (:mod:`~sim.camera.glare`), lens distortion, vignetting
+(:mod:`~sim.camera.optics`); the sensor
 (:mod:`~sim.camera.sensor`): exposure, Bayer mosaic, Poisson-Gaussian noise and the full-well
 clip, white balance, demosaicing, response curve and 8-bit quantisation; JPEG), each stage
 skipped (at no cost) when its keys switch it off; :func:`without_optics` and

@@ -16,11 +16,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from sim.camera import optics, raw, sensor
+from sim.camera import glare, optics, raw, sensor
 from sim.stages import stages_of, streams_version, switch_off
 
 CHAIN = (
     optics.PSF,
+    glare.GLARE,
     optics.DISTORTION,
     optics.VIGNETTING,
     sensor.SENSOR,
@@ -40,11 +41,12 @@ def without_optics(cfg: Any) -> Any:
     >>> @dataclass(frozen=True)
     ... class Cam:
     ...     psf_sigma: float = 0.5
+    ...     glare: float = 0.02
     ...     distortion: float = -0.01
     ...     vignetting: float = 0.2
     ...     shot_noise: float = 1e-4
     >>> without_optics(Cam())
-    Cam(psf_sigma=0.0, distortion=0.0, vignetting=0.0, shot_noise=0.0001)
+    Cam(psf_sigma=0.0, glare=0.0, distortion=0.0, vignetting=0.0, shot_noise=0.0001)
     """
     return switch_off(cfg, (s for s in STAGES if s.optical))
 

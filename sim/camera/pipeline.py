@@ -20,8 +20,9 @@ def _optical(items: tuple) -> tuple:
 
 
 def apply_optics(radiance: np.ndarray, cfg) -> np.ndarray:
-    """The optical stages of :data:`sim.camera.chain.CHAIN` (PSF, distortion, vignetting), each
-    only when its keys do not switch it off (the input itself is returned when all are off).
+    """The optical stages of :data:`sim.camera.chain.CHAIN` (PSF, glare, distortion,
+    vignetting), each only when its keys do not switch it off (the input itself is returned when
+    all are off).
 
     Parameters
     ----------

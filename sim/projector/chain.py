@@ -20,13 +20,16 @@ options. A new effect is a module of this package declaring its options, its fun
 """
 from __future__ import annotations
 
-from sim.projector import lamp, lens, photometry, scaler
+from sim.projector import distortion, flare, lamp, lens, photometry, scaler, translucency
 from sim.stages import stages_of
 
 EMISSION = (
     scaler.SCALER,
     photometry.PHOTOMETRY,
     lens.LENS,
+    distortion.DISTORTION,
+    translucency.TRANSLUCENCY,
+    flare.FLARE,
 )
 """The stages before the light transport, in order."""
 TRANSPORT = (

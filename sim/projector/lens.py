@@ -50,12 +50,17 @@ class Lens:
         float (H + 2 pad, W + 2 pad): defocus disk diameter in pixels of the light leaving each
         pixel of the padded grid (from the depth of the surface it lands on), or None when the
         lens is in focus everywhere (every disk below :data:`~sim.projector.defocus.SHARP_DIAMETER`).
+    surface_pitch : float
+        Metres: the width of one panel pixel on the surface where the optical axis meets it
+        (:func:`throw_distance` × 2 tan(fov / 2) / panel width), with which the stages after the
+        lens convert lengths on the surface to pixels; 0 when unknown (a lens made by hand).
     """
 
     panel: tuple[int, int]
     pad: int = 0
     psf_sigma: float = 0.0
     diameters: np.ndarray | None = None
+    surface_pitch: float = 0.0
 
     @property
     def size(self) -> tuple[int, int]:
@@ -137,13 +142,16 @@ def lens_for(setup: Any) -> Lens:
     -------
     Lens
         A sharp lens without padding when ``psf_sigma`` and ``aperture`` are 0; no defocus map
-        when the surface lies in focus everywhere (a plane at the focus distance, head-on).
+        when the surface lies in focus everywhere (a plane at the focus distance, head-on). Its
+        :attr:`~Lens.surface_pitch` is the panel pixel's width where the optical axis meets the
+        surface.
     """
     p = setup.projector
     w, h = p.resolution
     reach = gaussian_radius(p.psf_sigma)
+    pitch = throw_distance(setup) * 2 * math.tan(math.radians(p.fov) / 2) / w
     if p.aperture == 0:
-        return Lens((w, h), reach, p.psf_sigma)
+        return Lens((w, h), reach, p.psf_sigma, surface_pitch=pitch)
     surface = surfaces.surface_for(setup.surface)
     pad, diameters = 0, None
     for _ in range(4):  # the padded grid's own disks may need a little more padding
@@ -165,8 +173,8 @@ def lens_for(setup: Any) -> Lens:
         c = pad - need
         diameters, pad = diameters[c:-c, c:-c], need
     if float(diameters.max()) < SHARP_DIAMETER:  # in focus everywhere: a point each
-        return Lens((w, h), pad, p.psf_sigma)
-    return Lens((w, h), pad, p.psf_sigma, np.ascontiguousarray(diameters, np.float32))
+        return Lens((w, h), pad, p.psf_sigma, surface_pitch=pitch)
+    return Lens((w, h), pad, p.psf_sigma, np.ascontiguousarray(diameters, np.float32), pitch)
 
 
 @dataclass(frozen=True)

@@ -89,7 +89,8 @@ ProjectorConfig = combine(
     "ProjectorConfig", (ProjectorView, *(stage.options for stage in projector_chain.STAGES)),
     """The projector: the keys of :class:`ProjectorView` (pose, field of view, panel), then those
     of each stage of :data:`sim.projector.chain.CHAIN` in order (scaler, response, mixing, lens,
-    brightness, lamp), each declared and documented by its stage's options.""", __name__)
+    distortion, translucency, flare, brightness, lamp), each declared and documented by its stage's
+    options.""", __name__)
 
 
 @dataclass(frozen=True)
