@@ -27,6 +27,7 @@ from sim.setup import load_setup, scene_path
 
 METHODS = ("tps", "tps-textured", "nayar", "compennet")
 EFFECTS = {  # row name -> (section, key) pairs taken from the default setup
+    "surface relief": (("surface", "relief"),),
     "projector lens PSF": (("projector", "psf_sigma"),),
     "projector defocus": (("projector", "aperture"),),
     "lamp flicker": (("projector", "flicker"),),
@@ -39,7 +40,7 @@ EFFECTS = {  # row name -> (section, key) pairs taken from the default setup
     "exposure rule": (("camera", "exposure_mode"),),
     "estimated homography": (("registration", "method"),),
 }
-OFF = {("projector", "psf_sigma"): 0.0, ("projector", "aperture"): 0.0, ("projector", "flicker"): 0.0,
+OFF = {("surface", "relief"): 0.0, ("projector", "psf_sigma"): 0.0, ("projector", "aperture"): 0.0, ("projector", "flicker"): 0.0,
        ("projector", "drift"): 0.0, ("camera", "psf_sigma"): 0.0, ("camera", "bayer"): "none",
        ("camera", "vignetting"): 0.0, ("camera", "distortion"): 0.0, ("camera", "jpeg_quality"): 0,
        ("camera", "exposure_mode"): "manual", ("registration", "method"): "exact"}
@@ -47,12 +48,22 @@ OFF = {("projector", "psf_sigma"): 0.0, ("projector", "aperture"): 0.0, ("projec
 
 
 def _with(setup, name: str, values: dict):
-    """``setup`` renamed, with ``{(section, key): value}`` replaced."""
+    """``setup`` renamed, with ``{(section, key): value}`` replaced (a surface's own keys, such as
+    ``relief``, in its ``shape``)."""
     sections = {}
     for (section, key), value in values.items():
         sections.setdefault(section, {})[key] = value
+    surface = sections.pop("surface", {})
+    shape = {k: surface.pop(k) for k in list(surface) if hasattr(setup.surface.shape, k)}
+    sections["surface"] = {**surface, "shape": dataclasses.replace(setup.surface.shape, **shape)}
     return dataclasses.replace(setup, name=name, **{
         s: dataclasses.replace(getattr(setup, s), **kv) for s, kv in sections.items()})
+
+
+def _value(setup, section: str, key: str):
+    """A key's value in a setup (a surface's own keys from its ``shape``)."""
+    part = getattr(setup, section)
+    return getattr(part.shape if section == "surface" and not hasattr(part, key) else part, key)
 
 
 def setups() -> list:
@@ -61,7 +72,7 @@ def setups() -> list:
     base = _with(default, "effects_base", OFF)
     out = [base]
     for i, (row, keys) in enumerate(EFFECTS.items(), start=1):
-        on = {k: getattr(getattr(default, k[0]), k[1]) for k in keys}
+        on = {k: _value(default, *k) for k in keys}
         out.append(_with(base, f"effects_{i:02d}", on))
     out.append(dataclasses.replace(default, name="effects_all"))
     return out
