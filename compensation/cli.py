@@ -31,13 +31,22 @@ def cmd_render(args: argparse.Namespace) -> None:
     if args.list:
         print("\n".join(s.name for s in setups))
         return
-    spec = FrameSpec(args.n_train, args.n_test, args.size, args.frame_seed, args.images)
+    spec = FrameSpec(args.n_train, args.n_test, args.size, args.frame_seed, args.images, args.test_frames)
     for setup in setups:  # every setup of a suite is checked before the first is rendered
         check_render(setup, spec, args.fidelity, args.spp)
     for setup in setups:
         out = write_setup(Path(args.out), setup, spec, args.fidelity, args.spp,
                           progress=not args.quiet, overwrite=args.overwrite)
         print(f"procam: {setup.name} -> {out}")
+
+
+def _test_frames_option(p) -> None:
+    from sim.images import FRAME_KINDS
+
+    p.add_argument("--test-frames", choices=FRAME_KINDS, default="mixed",
+                   help="the generated test frames: mixed (photographs, patterns and blends, as the "
+                        "training frames; the default) or photo (natural images only, as in the "
+                        "paper's datasets)")
 
 
 def add_render(sub) -> None:
@@ -51,6 +60,7 @@ def add_render(sub) -> None:
     p.add_argument("--size", type=_size, default=(256, 256), help="canonical size N or WxH (default 256)")
     p.add_argument("--images", default=None, help="folder of your own projector frames (sorted by name)")
     p.add_argument("--frame-seed", type=int, default=0, help="seed of the frame generator (default 0)")
+    _test_frames_option(p)
     p.add_argument("--fidelity", choices=["auto", "path", "direct", "transport"], default=None,
                    help="override the setup's rendering level (auto: measure and pick the cheapest "
                         "below the camera noise; transport: a light-transport operator calibrated "
@@ -353,7 +363,8 @@ def cmd_bench(args: argparse.Namespace) -> None:
         raise ProcamError("--n-train: the bench takes its training sizes from --sizes")
     cfg = BenchConfig(profile=args.profile, methods=_names(args.methods, "--methods"),
                       sizes=args.sizes, tables=tuple(args.tables.split(",")), size=args.size,
-                      n_test=n_test, overrides=options, closed_loop=args.closed_loop, target=_target(args))
+                      n_test=n_test, overrides=options, closed_loop=args.closed_loop, target=_target(args),
+                      test_frames=args.test_frames)
     if args.only is not None and not args.suite:
         raise ProcamError("--only selects setups of a suite: give the suite (the setups found under "
                           "--data are all taken)")
@@ -396,6 +407,7 @@ def add_bench(sub) -> None:
     p.add_argument("--closed-loop", action="store_true",
                    help="also project every compensation back through the setup and score it "
                         "(simulated setups only: those with a setup.toml)")
+    _test_frames_option(p)
     _training_options(p)
     _target_options(p, "global")
     _executor_options(p)

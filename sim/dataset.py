@@ -61,6 +61,9 @@ class FrameSpec:
     images_dir : str or None
         A folder of the user's own frames (train then test, sorted by name) instead of the
         generator.
+    test_frames : str
+        Kind of the generated test frames (:data:`sim.images.FRAME_KINDS`: ``"mixed"``, the
+        training frames' kind, or ``"photo"``, natural images only).
 
     Raises
     ------
@@ -74,8 +77,15 @@ class FrameSpec:
     size: tuple[int, int] = (256, 256)
     seed: int = 0
     images_dir: str | None = None
+    test_frames: str = "mixed"
 
     def __post_init__(self):
+        if self.test_frames not in images.FRAME_KINDS:
+            raise DatasetError(f"projector frames: test_frames (--test-frames) = {self.test_frames!r}: "
+                               f"expected one of {', '.join(images.FRAME_KINDS)}")
+        if self.test_frames != "mixed" and self.images_dir:
+            raise DatasetError("projector frames: --test-frames and --images exclude each other "
+                               "(your own frames are taken as they are)")
         for name, option, value, least, most in (("n_train", "--n-train", self.n_train, 1, None),
                                                  ("n_test", "--n-test", self.n_test, 1, None),
                                                  ("seed", "--frame-seed", self.seed, 0, 2 ** 32 - 1),
@@ -94,9 +104,11 @@ class FrameSpec:
                                "of this machine's memory, can be held")
 
     def source(self) -> dict:
-        """What identifies the frames (counts excluded: a larger run extends a smaller one)."""
+        """What identifies the frames (counts excluded: a larger run extends a smaller one); the
+        test frames' kind only when not ``"mixed"``."""
         return {"width": int(self.size[0]), "height": int(self.size[1]), "seed": self.seed,
-                "images_dir": str(Path(self.images_dir).resolve()) if self.images_dir else None}
+                "images_dir": str(Path(self.images_dir).resolve()) if self.images_dir else None,
+                **({"test_frames": self.test_frames} if self.test_frames != "mixed" else {})}
 
 
 def canonical_size(record: dict) -> tuple[int, int] | None:
@@ -130,7 +142,8 @@ def projector_frames(spec: FrameSpec) -> dict[str, np.ndarray]:
         return {REF: ref, TRAIN: user[:spec.n_train], TEST: user[spec.n_train:]}
     return {REF: ref,
             TRAIN: images.projector_frames(spec.n_train, spec.size, spec.seed, seeds.TRAIN_FRAMES),
-            TEST: images.projector_frames(spec.n_test, spec.size, spec.seed, seeds.TEST_FRAMES)}
+            TEST: images.projector_frames(spec.n_test, spec.size, spec.seed, seeds.TEST_FRAMES,
+                                          spec.test_frames)}
 
 
 def _read_frames_manifest(marker: Path) -> dict:

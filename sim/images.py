@@ -297,10 +297,16 @@ def _photo(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
 
 
 _PATTERNS = (_noise, _stripes, _checker, _gradient, _shapes)
+FRAME_KINDS = ("mixed", "photo")
+"""Kinds of generated projector frames (:func:`projector_frames`)."""
 
 
-def _frame(seed: int, stream: int, index: int, w: int, h: int) -> np.ndarray:
-    """Projector frame ``index`` of (seed, stream): uint8 (H, W, 3), sRGB-encoded."""
+def _frame(seed: int, stream: int, index: int, w: int, h: int, kind: str = "mixed") -> np.ndarray:
+    """Projector frame ``index`` of (seed, stream) of a kind of :data:`FRAME_KINDS`: uint8
+    (H, W, 3), sRGB-encoded."""
+    if kind == "photo":  # its own generator: a mixed frame of the same index is unchanged
+        rng = np.random.default_rng([seeds.FRAME_TAG, seed, stream, index, FRAME_KINDS.index(kind)])
+        return np.clip(_photo(rng, w, h) * 255 + 0.5, 0, 255).astype(np.uint8)
     rng = np.random.default_rng([seeds.FRAME_TAG, seed, stream, index])
     choice = rng.random()  # 45 % photographs, 30 % patterns, 25 % blends of both
     if choice < 0.45:
@@ -343,27 +349,39 @@ def plain_frame(rgb_uint8, size) -> np.ndarray:
     return np.broadcast_to(np.asarray(rgb_uint8, np.uint8).reshape(3), (h, w, 3)).copy()
 
 
-def projector_frames(count: int, size, seed: int, stream: int = 0) -> np.ndarray:
+def projector_frames(count: int, size, seed: int, stream: int = 0, kind: str = "mixed") -> np.ndarray:
     """``count`` colourful, textured, mutually different projector frames.
 
-    Frame ``i`` depends only on (seed, stream, i), so a longer run starts with a shorter run's
-    frames; a dataset's training and test frames use the streams :data:`sim.seeds.TRAIN_FRAMES`
-    and :data:`sim.seeds.TEST_FRAMES` (non-negative integers).
+    Frame ``i`` depends only on (seed, stream, i, kind), so a longer run starts with a shorter
+    run's frames; a dataset's training and test frames use the streams
+    :data:`sim.seeds.TRAIN_FRAMES` and :data:`sim.seeds.TEST_FRAMES` (non-negative integers).
 
     Parameters
     ----------
     size : int or (int, int)
         Side, or (width, height), in pixels.
+    kind : str
+        One of :data:`FRAME_KINDS`: ``"mixed"``, crops of the bundled photographs (45 %),
+        procedural patterns (30 %) and blends of both (25 %), each with a random hue rotation,
+        saturation boost and gamma; ``"photo"``, crops of the bundled photographs with their own
+        colours (natural images, as in the paper's datasets).
 
     Returns
     -------
     numpy.ndarray
         ``uint8`` (count, H, W, 3), sRGB-encoded projector input.
+
+    Raises
+    ------
+    ValueError
+        If ``kind`` is not one of :data:`FRAME_KINDS`.
     """
+    if kind not in FRAME_KINDS:
+        raise ValueError(f"projector frames of kind {kind!r}: expected one of {', '.join(FRAME_KINDS)}")
     w, h = _wh(size)
     out = np.empty((count, h, w, 3), np.uint8)
     for i in range(count):
-        out[i] = _frame(seed, stream, i, w, h)
+        out[i] = _frame(seed, stream, i, w, h, kind)
     return out
 
 

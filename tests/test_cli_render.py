@@ -146,3 +146,21 @@ def test_console_script_help():
     out = subprocess.run([str(exe), "render", "--help"], capture_output=True, text=True,
                          env={**os.environ}, check=True).stdout
     assert "--n-train" in out and "--size" in out
+
+
+def test_photo_test_frames_change_the_test_split_only(tiny_render, tmp_path, capsys):
+    """--test-frames photo: the same training frames, natural test frames, recorded in frames.json;
+    a root of mixed test frames refuses them (its frames are made otherwise)."""
+    root = tmp_path / "photo"
+    argv = ["render", str(tiny_render / "tiny.toml"), "--out", str(root), *TINY_RENDER]
+    assert main([*argv, "--test-frames", "photo"]) == 0
+    mixed = tiny_render / "data"
+    for split, same in (("ref", True), ("train", True), ("test", False)):
+        for a in sorted((mixed / split).glob("img_*.png")):
+            assert np.array_equal(read_png(a), read_png(root / split / a.name)) == same, (split, a.name)
+    assert json.loads((root / "frames.json").read_text())["source"]["test_frames"] == "photo"
+    assert "test_frames" not in json.loads((mixed / "frames.json").read_text())["source"]
+    copy = _copy(tiny_render, tmp_path)
+    assert main(["render", str(tiny_render / "tiny.toml"), "--out", str(copy), *TINY_RENDER,
+                 "--test-frames", "photo"]) == 2
+    assert "frames.json" in capsys.readouterr().err

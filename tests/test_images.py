@@ -54,6 +54,20 @@ def test_frames_deterministic_and_prefix_stable():
         assert all((x != y).any() for x, y in zip(a, other))
 
 
+def test_photo_frames_are_natural_crops_of_their_own():
+    """Photo frames: deterministic, not the mixed frames, and natural: moderately saturated, with
+    none of the patterns' flat regions of one colour or their hue rotations' extreme saturation."""
+    photo = images.projector_frames(40, 48, seed=0, stream=1, kind="photo")
+    np.testing.assert_array_equal(photo, images.projector_frames(40, 48, seed=0, stream=1, kind="photo"))
+    mixed = images.projector_frames(40, 48, seed=0, stream=1)
+    np.testing.assert_array_equal(mixed, images.projector_frames(40, 48, seed=0, stream=1, kind="mixed"))
+    assert all((a != b).any() for a, b in zip(photo, mixed))
+    sat = lambda f: cv2.cvtColor(f.astype(np.float32) / 255, cv2.COLOR_RGB2HSV)[..., 1].mean()
+    assert np.mean([sat(f) for f in photo]) < np.mean([sat(f) for f in mixed]) - 0.1
+    with pytest.raises(ValueError, match="kind 'cartoon': expected one of mixed, photo"):
+        images.projector_frames(1, 8, seed=0, kind="cartoon")
+
+
 @pytest.fixture(scope="module")
 def frames_700():
     """The default dataset's 500 training + 200 test frames, at 64² to keep the test fast."""

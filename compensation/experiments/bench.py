@@ -62,6 +62,8 @@ class BenchConfig:
     """Also score every run in closed loop and add the iterative-refinement oracle."""
     target: TargetPolicy = TargetPolicy()
     """What the closed loop scores against (:mod:`~compensation.experiments.targets`)."""
+    test_frames: str = "mixed"
+    """Kind of the rendered test frames (:data:`sim.images.FRAME_KINDS`: ``mixed`` or ``photo``)."""
 
     def __post_init__(self):
         for name in self.methods:
@@ -241,7 +243,8 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         setups = [s.name for s in suite]
     data_root = Path(data_root or out / "data")
     plan = bench_plan(cfg, out, suite, setups, white)
-    spec = FrameSpec(max(max(cfg.sizes), TABLE2["n_train"]), cfg.tests, (cfg.canonical,) * 2)
+    spec = FrameSpec(max(max(cfg.sizes), TABLE2["n_train"]), cfg.tests, (cfg.canonical,) * 2,
+                     test_frames=cfg.test_frames)
     scoring = Scoring(cfg.tests, cfg.closed_loop, official=True, masks=cfg.closed_loop,
                       renders_required=True, target=cfg.target)
     outcome = execute(plan, out, data_root, spec, scoring, executor, setups, progress)
@@ -254,6 +257,7 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         "kind": "bench", "base": None, "axes": [], "methods": list(cfg.methods), "seeds": [seed],
         "n_train": list(cfg.sizes), "n_test": cfg.tests, "size": [cfg.canonical] * 2 if suite else None,
         "overrides": cfg.overrides, "tables": list(cfg.tables), "profile": cfg.profile,
+        "test_frames": cfg.test_frames,
         "target": cfg.target.record() if cfg.closed_loop else None, "executor": executor.name,
         "setups": {s: os.path.relpath(data_root / s / SETUP_FILE, out) for s in setups
                    if simulated(data_root / s)}})
