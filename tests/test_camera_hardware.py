@@ -1,8 +1,10 @@
 """Tests of the camera hardware model: the fast 8-bit encoder against the straightforward
-definition, and the physics of each effect (PSF width, Bayer sampling and per-channel noise
-after white balance, vignetting falloff, a checkerboard through distortion, JPEG, exposure rule)."""
+definition, and the physics of each effect (PSF width, veiling glare, Bayer sampling and
+per-channel noise after white balance, vignetting falloff, a checkerboard through distortion, JPEG,
+exposure rule)."""
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import replace
 from types import SimpleNamespace
@@ -123,6 +125,30 @@ def test_psf_of_a_point_has_the_set_width():
         # a sampled Gaussian's variance is sigma^2 (+1/12 below one pixel, where sampling matters)
         assert var_x == pytest.approx(sigma**2, rel=0.06) and var_y == pytest.approx(var_x, rel=1e-6)
         assert out[40, 40] == out.max()
+
+
+def test_glare_lifts_a_black_patch_in_white_by_the_veiling_glare():
+    """ISO 9358's setup: a black patch in a white field receives the glare fraction times the share
+    of the veil's Gaussian that falls on the white (the field reaches 10 sigma; the patch holds
+    erf(h / (sigma sqrt 2))² of it); the light is kept and the stage is linear."""
+    size, half, glare, sigma = 256, 8, 0.03, 0.05  # sigma: 12.8 px
+    white = np.ones((size, size, 3), np.float32)
+    white[128 - half:128 + half, 128 - half:128 + half] = 0.0
+    cfg = replace(CameraConfig(), glare=glare, glare_sigma=sigma)
+    out = camera.apply_optics(white, cfg)
+    s = sigma * size
+    in_patch = math.erf(half / (s * math.sqrt(2))) ** 2
+    assert out[127:129, 127:129].mean() == pytest.approx(glare * (1 - in_patch), rel=0.03)
+    assert out[40, 40, 0] == pytest.approx(1.0, abs=1e-3)  # far from the patch and the edges
+    dot = np.zeros((size, size, 3), np.float32)
+    dot[100, 140] = 1.0
+    assert camera.apply_optics(dot, cfg).sum() == pytest.approx(3.0, rel=1e-5)
+    rng = np.random.default_rng(6)
+    x, y = (rng.random((64, 96, 3), dtype=np.float32) for _ in range(2))
+    np.testing.assert_allclose(camera.apply_optics(0.4 * x + 0.6 * y, cfg),
+                               0.4 * camera.apply_optics(x, cfg) + 0.6 * camera.apply_optics(y, cfg),
+                               rtol=1e-5, atol=1e-6)
+    assert camera.apply_optics(x, replace(cfg, glare=0.0)) is x  # off: skipped, whatever its width
 
 
 @pytest.mark.parametrize("pattern", camera.BAYER_PATTERNS)
@@ -275,6 +301,8 @@ def test_auto_fidelity_weighs_its_errors_at_the_rule_exposure(monkeypatch):
     ("demosaic", "ahd", 'expected one of "bilinear", "vng", "edgeaware"'),
     ("vignetting", 1.0, "expected a number in [0, 1)"),
     ("distortion", -0.3, "expected a number in [-0.14, 1]"),
+    ("glare", 0.6, "expected a number in [0, 0.5]"),
+    ("glare_sigma", 0.0, "expected a number in (0, 2]"),
     ("jpeg_quality", 101, "expected an integer in [0, 100]"),
     ("jpeg_quality", 90.0, "expected an integer"),
     ("exposure_mode", "auto", 'expected one of "manual", "rule"'),
@@ -288,11 +316,11 @@ def test_bad_camera_keys_are_named(key, value, expected):
 def test_camera_keys_round_trip_and_default_off():
     s = parse_setup({"name": "n", "camera": {"psf_sigma": 0.7, "bayer": "GBRG", "demosaic": "vng",
                                              "vignetting": 0.3, "distortion": -0.05, "jpeg_quality": 90,
-                                             "exposure_mode": "rule"}})
+                                             "exposure_mode": "rule", "glare": 0.02, "glare_sigma": 0.3}})
     assert parse_setup(tomllib.loads(dump_setup(s))) == s
     d = parse_setup({"name": "n"}).camera
-    assert (d.psf_sigma, d.bayer, d.vignetting, d.distortion, d.jpeg_quality, d.exposure_mode) == (
-        0.0, "none", 0.0, 0.0, 0, "manual")
+    assert (d.psf_sigma, d.bayer, d.vignetting, d.distortion, d.jpeg_quality, d.exposure_mode,
+            d.glare) == (0.0, "none", 0.0, 0.0, 0, "manual", 0.0)
 
 
 def test_dataset_records_the_exposure_used(tmp_path):

@@ -1,5 +1,6 @@
 """The projector's hardware: scaler (frame area), lens PSF, depth-dependent defocus with its spill
-kept, lamp flicker and drift; and that all of it stays exact in the light-transport operator."""
+kept, lens distortion about its offset axis, the surface's translucency, flare and its contrasts,
+lamp flicker and drift; and that all of it stays exact in the light-transport operator."""
 from __future__ import annotations
 
 import math
@@ -12,9 +13,11 @@ from helpers import tiny_setup
 
 from sim import projector, registration, seeds
 from sim.capture import Simulator
-from sim.errors import SetupError
-from sim.projector import lens_for
+from sim.errors import ProcamError, SetupError
+from sim.projector import distortion, flare, lens_for, translucency
 from sim.render import Renderer
+from sim.setup import load_setup, scene_path
+from sim.stages import run
 from sim.transport import TransportRenderer
 
 
@@ -215,6 +218,132 @@ def test_lens_stays_exact_in_the_transport_operator():
     assert np.abs(got - want).max() <= 1e-4 * want.max()
 
 
+# ----------------------------------------------------------------------------------- distortion
+
+def _blob(lens: projector.Lens, x: float, y: float, sigma: float = 3.0) -> np.ndarray:
+    """A small Gaussian spot of total 1 at panel point ``(x, y)`` on the lens's padded grid."""
+    w, h = lens.size
+    gy, gx = np.mgrid[0:h, 0:w] + 0.5 - lens.pad
+    spot = np.exp(-((gx - x) ** 2 + (gy - y) ** 2) / (2 * sigma ** 2))
+    return np.repeat((spot / spot.sum()).astype(np.float32)[..., None], 3, axis=2)
+
+
+def test_distortion_moves_a_point_where_browns_model_says_about_the_offset_axis():
+    """A spot leaves the lens at u = a + (x - a)(1 + k1 rho² + k2 rho⁴) about the axis point a,
+    half a panel height below the image centre here: the centre moves straight up, a point near
+    the axis stays; the flux is kept (the Jacobian; but for the bilinear resampling's moiré,
+    under 1 % for a spot this small)."""
+    lens = projector.Lens((128, 96), 12)
+    k1, k2, offset = 0.05, 0.01, 0.5
+    axis = np.array([64.0, 96.0])
+    for point in ([64.0, 48.0], [96.0, 24.0], [20.0, 70.0], [64.0, 93.0]):
+        out = distortion.distort(_blob(lens, *point), lens, k1, k2, offset)[..., 1]
+        total, cx, cy, _ = _moments(out)
+        rho2 = np.sum(((np.array(point) - axis) / 80.0) ** 2)
+        want = axis + (np.array(point) - axis) * (1 + k1 * rho2 + k2 * rho2 ** 2)
+        np.testing.assert_allclose(want, distortion.distort_points(point, (128, 96), k1, k2, offset))
+        np.testing.assert_allclose([cx + 0.5 - lens.pad, cy + 0.5 - lens.pad], want, atol=0.06)
+        assert total == pytest.approx(1.0, abs=0.01)
+    centre = distortion.distort_points([64.0, 48.0], (128, 96), k1, k2, offset)
+    assert centre[0] == 64.0 and 47.0 < centre[1] < 47.2  # up by ~0.93 px, along the axis line
+    # barrel pulls towards the axis
+    out = distortion.distort(_blob(lens, 96.0, 24.0), lens, -0.05, 0.0, offset)[..., 1]
+    _, cx, cy, _ = _moments(out)
+    assert np.hypot(cx + 0.5 - lens.pad - 64, cy + 0.5 - lens.pad - 96) < np.hypot(32, 72) - 3
+
+
+def test_distortion_is_linear_keeps_smooth_light_and_refuses_a_fold():
+    lens = projector.Lens((80, 60), 6)
+    rng = np.random.default_rng(3)
+    x, y = (rng.random((72, 92, 3), dtype=np.float32) for _ in range(2))
+    f = lambda v: distortion.distort(v, lens, -0.04, 0.01, 0.6)  # noqa: E731
+    np.testing.assert_allclose(f(0.3 * x + 0.7 * y), 0.3 * f(x) + 0.7 * f(y), rtol=1e-5, atol=1e-6)
+    smooth = np.zeros((72, 92, 3), np.float32)
+    smooth[10:62, 10:82] = 0.5 + 0.4 * np.sin(np.arange(72)[:, None] / 5.0)[10:62, None]
+    assert f(smooth).sum() == pytest.approx(smooth.sum(), rel=2e-3)
+    with pytest.raises(ProcamError, match=r"projector\.distortion_k1 = -0\.1.*folds the image over"):
+        distortion.distort(x, lens, -0.1, 0.0, 1.0)
+
+
+# ----------------------------------------------------------------------------------- translucency
+
+def test_lens_knows_its_pixel_on_the_surface():
+    lens = lens_for(tiny_setup())  # 64 px, fov 30, head-on at 1 m
+    assert lens.surface_pitch == pytest.approx(2 * math.tan(math.radians(15)) / 64, rel=1e-9)
+    assert lens_for(tiny_setup(projector={"position": [0.0, 0.0, 2.0]})).surface_pitch == \
+        pytest.approx(2 * lens.surface_pitch, rel=1e-9)
+
+
+def test_translucency_kernel_has_the_exponential_second_moment_and_keeps_the_light():
+    """exp(-r / mfp) in 2-D has mean r² = 6 mfp²; integrated over pixels, the pixel adds 1/6. The
+    kernel's length is the surface's millimetres in projector pixels."""
+    lens = projector.Lens((96, 96), 0, surface_pitch=0.5e-3)  # 0.5 mm per projector pixel
+    mfp_mm, fraction = 1.5, 0.6  # 3 px
+    out = translucency.translucent(_dot((96, 96), 48, 48), lens, mfp_mm, fraction)[..., 0]
+    total, cx, cy, var = _moments(out)
+    assert total == pytest.approx(1.0, abs=1e-5)
+    assert (cx, cy) == (pytest.approx(48, abs=1e-4), pytest.approx(48, abs=1e-4))
+    kernel = translucency.exponential_kernel(3.0)
+    assert 2 * var == pytest.approx(fraction * (6 * 3.0 ** 2 + 1 / 6), rel=0.01)
+    assert out[48, 48] == pytest.approx(1 - fraction + fraction * kernel.max(), rel=1e-5)
+    n = kernel.shape[0] // 2
+    yy, xx = np.mgrid[-n:n + 1, -n:n + 1]
+    assert float((kernel * (xx ** 2 + yy ** 2)).sum()) == pytest.approx(6 * 9 + 1 / 6, rel=0.01)
+    # a kernel far below a pixel keeps most of the light in place
+    tiny = translucency.exponential_kernel(0.1)
+    assert tiny.shape == (5, 5) and tiny[2, 2] > 0.95
+
+
+# ----------------------------------------------------------------------------------- flare
+
+def test_flare_veil_keeps_the_light_and_has_its_width():
+    lens = projector.Lens((400, 300), 0)
+    cfg = replace(tiny_setup().projector, flare=0.05, flare_sigma=0.05)  # 20 px
+    out = flare.FLARE.apply(_dot((400, 300), 200, 150), cfg, lens)[..., 0]
+    total, cx, cy, var = _moments(out - 0.95 * _dot((400, 300), 200, 150)[..., 0])
+    assert out.sum() == pytest.approx(1.0, abs=1e-5)
+    assert total == pytest.approx(0.05, rel=1e-4)
+    assert abs(cx - 200) <= 20 / 16 and abs(cy - 150) <= 20 / 16  # its coarse block's centre
+    assert math.sqrt(var) == pytest.approx(20.0, rel=0.02)
+
+
+def test_default_projector_flare_gives_the_ansi_contrast_of_reviews():
+    """projector reviews: ~160:1 ANSI (4x4 checkerboard) where full-on/full-off is far higher; the
+    flare lowers the one and leaves the other."""
+    setup = load_setup(scene_path("default"))
+    lens = lens_for(setup)
+
+    def emit(cfg):
+        return lambda frame: run(projector.chain.EMISSION, frame, cfg, lens)
+
+    p = setup.projector
+    no_flare = replace(p, flare=0.0)
+    ansi = flare.ansi_contrast(emit(p), lens)
+    assert ansi == pytest.approx(160, rel=0.15)
+    assert flare.ansi_contrast(emit(no_flare), lens) > 3 * ansi
+    full = flare.full_contrast(emit(p), lens)
+    assert full == pytest.approx(flare.full_contrast(emit(no_flare), lens), rel=1e-5)
+    assert full == pytest.approx(1 / p.black_level, rel=1e-3)
+
+
+# ----------------------------------------------------------------------------------- off
+
+def test_new_stages_switched_off_change_nothing():
+    """At their off values the distortion, translucency and flare are skipped, whatever their
+    other keys: the emitted light is bit for bit that of the chain without them."""
+    setup = tiny_setup(projector={"psf_sigma": 0.8, "lens_offset": 0.6, "translucency_fraction": 0.3,
+                                  "flare_sigma": 0.7})
+    lens = lens_for(setup)
+    frame = np.random.default_rng(5).random((64, 64, 3), dtype=np.float32)
+    chain = projector.chain.EMISSION
+    new = (distortion.DISTORTION, translucency.TRANSLUCENCY, flare.FLARE)
+    assert chain[-3:] == new and all(s.is_off(setup.projector) for s in new)
+    np.testing.assert_array_equal(run(chain, frame, setup.projector, lens),
+                                  run(chain[:-3], frame, setup.projector, lens))
+    on = replace(setup.projector, distortion_k1=0.02, translucency_mfp=2.0, flare=0.05)
+    assert not np.array_equal(run(chain, frame, on, lens), run(chain[:-3], frame, on, lens))
+
+
 # ----------------------------------------------------------------------------------- lamp
 
 def test_flicker_and_drift_statistics():
@@ -259,6 +388,12 @@ def test_lamp_scales_captures_but_not_the_calibration():
     ("psf_sigma", -0.5, "expected a number in [0, 50] projector pixels"),
     ("flicker", 0.7, "expected a number in [0, 0.5]"),
     ("drift", -1.0, "expected a number in (-1, 1)"),
+    ("distortion_k1", 0.2, "expected a number in [-0.1, 0.1]"),
+    ("lens_offset", 1.5, "expected a number in [-1, 1]"),
+    ("translucency_mfp", -1.0, "expected a number in [0, 10] millimetres"),
+    ("translucency_fraction", 1.2, "expected a number in [0, 1]"),
+    ("flare", 0.6, "expected a number in [0, 0.5]"),
+    ("flare_sigma", 0.0, "expected a number in (0, 2]"),
 ])
 def test_bad_projector_keys_are_named(key, value, expected):
     with pytest.raises(SetupError, match=rf"projector\.{key} = .*{re.escape(expected)}"):

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from helpers import tiny_setup
-from sim import projector
+from sim import camera, projector
 from sim.capture import Simulator
 from sim.errors import SetupError
 from sim.fidelity import probe_frame
@@ -66,6 +66,31 @@ def test_equals_direct_render_at_its_calibration_seed(default_op):
     x = np.random.default_rng(5).random((64, 64, 3), dtype=np.float32)
     want = cal.projector_radiance(x, tr.operator.info.seed)
     np.testing.assert_allclose(tr.projector_radiance(x), want, rtol=0, atol=1e-5 * want.max())
+
+
+def test_every_linear_effect_stays_exact():
+    """The projector lens's distortion, the surface's translucency and the projector's flare act
+    before T (on the emitted light), the camera's glare after it: with all of them on, T p still
+    equals the direct render of p at the calibration spp and seed, and the camera sees the same."""
+    keys = {"resolution": [32, 32], "psf_sigma": 0.7, "distortion_k1": -0.05, "distortion_k2": 0.01,
+            "lens_offset": 0.6, "translucency_mfp": 10.0, "translucency_fraction": 0.5,
+            "flare": 0.05, "flare_sigma": 0.2}
+    setup = tiny_setup(projector=keys, camera={"resolution": [32, 32], "glare": 0.02, "glare_sigma": 0.3},
+                       render={"fidelity": "transport", "spp": 4})
+    tr = TransportRenderer(setup)
+    assert tr.operator.info.verify_error <= 1e-4
+    frame = np.random.default_rng(8).integers(0, 256, (32, 32, 3), dtype=np.uint8)
+    irr = tr.emit(frame)
+    plain = Renderer(replace(setup, projector=replace(setup.projector, distortion_k1=0.0, distortion_k2=0.0,
+                                                      translucency_mfp=0.0, flare=0.0)), "direct", 4)
+    assert irr.shape == plain.emit(frame).shape and np.abs(irr - plain.emit(frame)).max() > 0.01
+    direct = Renderer(setup, "direct", 4)
+    np.testing.assert_array_equal(direct.emit(frame), irr)
+    want = direct.projector_radiance(irr, tr.operator.info.seed)
+    got = tr.projector_radiance(irr)
+    assert np.abs(got - want).max() <= 1e-4 * want.max()
+    seen = [camera.apply_optics(x, setup.camera) for x in (got, want)]
+    assert not np.array_equal(seen[0], got) and np.abs(seen[0] - seen[1]).max() <= 1e-4 * want.max()
 
 
 def test_exactly_linear_and_batched(default_op):
