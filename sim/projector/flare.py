@@ -30,13 +30,13 @@ width and height (an eighth of a checkerboard square)."""
 
 
 def _reading(light: np.ndarray, lens, x: float, y: float) -> float:
-    """The mean over the channels and a small window (:data:`WINDOW`) of the padded grid's light
-    around panel point ``(x, y)`` (fractions of the panel's width and height)."""
+    """The mean over the channels and a small window (:data:`WINDOW`, at least a pixel) of the
+    padded grid's light around panel point ``(x, y)`` (fractions of the panel's width and height)."""
     w, h = lens.panel
     p = lens.pad
     x0, x1 = (int(round(p + (x + s * WINDOW) * w)) for s in (-1, 1))
     y0, y1 = (int(round(p + (y + s * WINDOW) * h)) for s in (-1, 1))
-    return float(light[y0:y1, x0:x1].mean())
+    return float(light[y0:max(y1, y0 + 1), x0:max(x1, x0 + 1)].mean())
 
 
 def ansi_contrast(emit: Callable[[np.ndarray], np.ndarray], lens) -> float:
