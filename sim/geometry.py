@@ -72,9 +72,25 @@ class Pinhole:
 
     def pixel_rays(self) -> np.ndarray:
         """Unit world directions through every pixel centre, shape (height, width, 3)."""
-        u = (np.arange(self.width) + 0.5) / self.width
-        v = (np.arange(self.height) + 0.5) / self.height
-        uu, vv = np.meshgrid(u, v)
+        uu, vv = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
+        return self.rays(np.stack([uu, vv], axis=-1))
+
+    def rays(self, pixels: np.ndarray) -> np.ndarray:
+        """Unit world directions through continuous pixel coordinates.
+
+        Parameters
+        ----------
+        pixels : numpy.ndarray
+            (..., 2) (column, row) coordinates; pixel centres at integer + 0.5 (the inverse of
+            :meth:`project`).
+
+        Returns
+        -------
+        numpy.ndarray
+            (..., 3) unit directions.
+        """
+        pixels = np.asarray(pixels, float)
+        uu, vv = pixels[..., 0] / self.width, pixels[..., 1] / self.height
         t, a = self.tan_half, self.image_aspect
         local = np.stack([-(2 * uu - 1) * t, -(2 * vv - 1) * t / a, np.ones_like(uu)], axis=-1)
         d = local @ self.frame().T

@@ -19,7 +19,6 @@ Two maps bring a capture into that view (:func:`register` picks one by ``registr
 """
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass
 from typing import Callable
@@ -30,6 +29,7 @@ import numpy as np
 from sim import camera, geometry, seeds, surfaces
 from sim.errors import SetupError
 from sim.projector import frame_area
+from sim.projector.distortion import distort_points
 from sim.setup import Setup
 
 MIN_VISIBLE_FRACTION = 0.5
@@ -63,7 +63,8 @@ def exact_map(setup: Setup, size: tuple[int, int]) -> WarpMap:
     Parameters
     ----------
     setup : Setup
-        The setup (projector and camera poses, surface geometry, the camera's lens distortion).
+        The setup (projector and camera poses, surface geometry, both lenses' distortion: each
+        canonical pixel leaves the projector along the ray its panel point is distorted to).
     size : (int, int)
         Canonical (width, height) in pixels: the view of the frame's area on the panel
         (:func:`sim.projector.frame_area`; the whole panel with ``projector.keep_aspect = false``,
@@ -72,14 +73,13 @@ def exact_map(setup: Setup, size: tuple[int, int]) -> WarpMap:
     surface = surfaces.surface_for(setup.surface)
     p = setup.projector
     x0, y0, w, h = frame_area(p.resolution, size, p.keep_aspect)
-    if (w, h) == tuple(p.resolution):
-        proj = geometry.Pinhole.from_config(p, size)
-    else:  # the centred sub-window of the panel the frame fills (square panel pixels)
-        fov = math.degrees(2 * math.atan(math.tan(math.radians(p.fov) / 2) * w / p.resolution[0]))
-        proj = geometry.Pinhole(np.asarray(p.position, float), np.asarray(p.look_at, float),
-                                np.asarray(p.up, float), fov, int(size[0]), int(size[1]), w / h)
+    # each canonical pixel's centre on the panel, and the ray it leaves the lens along
+    u, v = np.meshgrid((np.arange(size[0]) + 0.5) / size[0], (np.arange(size[1]) + 0.5) / size[1])
+    panel = np.stack([x0 + u * w, y0 + v * h], axis=-1)
+    panel = distort_points(panel, tuple(p.resolution), p.distortion_k1, p.distortion_k2, p.lens_offset)
+    proj = geometry.Pinhole.from_config(p)
     cam = geometry.Pinhole.from_config(setup.camera)
-    rays = proj.pixel_rays()
+    rays = proj.rays(panel)
     t, idx = surface.intersect(proj.position, rays)
     hit = np.isfinite(t)
     points = proj.position + np.where(hit, t, 1.0)[..., None] * rays

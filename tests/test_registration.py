@@ -8,6 +8,7 @@ import pytest
 from helpers import tiny_setup
 from sim import geometry, registration
 from sim.capture import Simulator
+from sim.render import Renderer
 
 SIZE = (64, 64)
 
@@ -161,3 +162,29 @@ def test_exact_map_follows_the_lens_distortion():
     err_right = np.abs(views["bent"] - views["straight"])[m].mean()
     err_wrong = np.abs(wrong - views["straight"])[m].mean()
     assert err_right < 0.5 * err_wrong and err_right < 6.0
+
+
+@pytest.mark.parametrize("relief, k", [(0.0, (-0.06, -0.01)), (4.0, (-0.06, -0.01)), (0.0, (0.05, 0.0))])
+def test_exact_map_follows_the_projector_distortion_as_rendered(relief, k):
+    """A canonical pixel lit alone lands, in the rendered capture, where the exact map says: the
+    centroid of its spot agrees to a fraction of a camera pixel with a strongly distorted, offset
+    projector lens, barrel (also on a sheet with relief) or pincushion (whose corners the lens's
+    padded grid must keep), while the map of an undistorted lens is pixels away."""
+    base = dict(projector={"resolution": [96, 96], "black_level": 0.0},
+                camera={"resolution": [128, 128], "position": [0.25, 0.0, 1.0]},
+                surface={"relief": relief, "relief_length": 40.0})
+    straight = tiny_setup(**base)
+    bent = tiny_setup(**{**base, "projector": {**base["projector"], "distortion_k1": k[0],
+                                                 "distortion_k2": k[1], "lens_offset": 0.5}})
+    size = (24, 24)
+    maps = {name: registration.exact_map(s, size) for name, s in (("straight", straight), ("bent", bent))}
+    renderer = Renderer(bent, "direct", 16)
+    for row, col in ((2, 2), (2, 21), (6, 12)):  # far from the axis (the bottom edge)
+        frame = np.zeros((size[1], size[0], 3), np.uint8)
+        frame[row, col] = 255
+        image = renderer.projector_radiance(renderer.emit(frame), seed=3)[..., 1].astype(np.float64)
+        image[image < 0.05 * image.max()] = 0  # the spot only
+        ys, xs = np.mgrid[0:image.shape[0], 0:image.shape[1]] + 0.5
+        centroid = np.array([(xs * image).sum(), (ys * image).sum()]) / image.sum()
+        assert np.linalg.norm(centroid - maps["bent"].xy[row, col]) < 0.35, (row, col)
+        assert np.linalg.norm(centroid - maps["straight"].xy[row, col]) > 1.0, (row, col)

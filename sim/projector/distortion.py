@@ -73,6 +73,27 @@ def distort_points(xy, panel: tuple[int, int], k1: float, k2: float,
     return a + (p - a) * (1.0 + k1 * rho2 + k2 * rho2 * rho2)
 
 
+def outward_reach(panel: tuple[int, int], k1: float, k2: float, lens_offset: float) -> int:
+    """Whole pixels by which the distorted panel reaches beyond the panel's rectangle (0 for barrel
+    distortion, which draws the image in): the padding the lens's grid needs so that the light of
+    the panel's edges is not lost (:func:`sim.projector.lens_for`).
+
+    Examples
+    --------
+    >>> outward_reach((100, 100), -0.05, 0.0, 0.0), outward_reach((100, 100), 0.05, 0.0, 0.0)
+    (0, 3)
+    """
+    if k1 == 0 and k2 == 0:
+        return 0
+    w, h = panel
+    t = np.linspace(0.0, 1.0, 257)
+    border = np.concatenate([np.stack([t * w, np.zeros_like(t)], -1), np.stack([t * w, np.full_like(t, h)], -1),
+                             np.stack([np.zeros_like(t), t * h], -1), np.stack([np.full_like(t, w), t * h], -1)])
+    u = distort_points(border, panel, k1, k2, lens_offset)
+    beyond = np.maximum.reduce([-u[:, 0], u[:, 0] - w, -u[:, 1], u[:, 1] - h, np.zeros(len(u))])
+    return int(np.ceil(beyond.max() - 1e-9))
+
+
 @functools.lru_cache(maxsize=8)
 def distortion_maps(panel: tuple[int, int], pad: int, k1: float, k2: float,
                     lens_offset: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -138,7 +159,9 @@ def distort(light: np.ndarray, lens, k1: float, k2: float, lens_offset: float) -
     Parameters
     ----------
     light : numpy.ndarray
-        float32 (H + 2 pad, W + 2 pad, 3): the lens's output on its padded grid.
+        float32 (H + 2 pad, W + 2 pad, 3): the lens's output on its padded grid, or the panel's
+        (H, W, 3) light when the lens's blur stages are off (padded here: the grid's padding may
+        be the distortion's own, :func:`outward_reach`).
     lens : sim.projector.Lens
         The setup's lens (panel and padding).
     k1, k2, lens_offset : float
@@ -151,6 +174,10 @@ def distort(light: np.ndarray, lens, k1: float, k2: float, lens_offset: float) -
     """
     mx, my, jac = distortion_maps(tuple(lens.panel), int(lens.pad), float(k1), float(k2),
                                   float(lens_offset))
+    if light.shape[:2] != mx.shape:
+        p = int(lens.pad)
+        light = cv2.copyMakeBorder(np.asarray(light, np.float32), p, p, p, p, cv2.BORDER_CONSTANT,
+                                   value=(0.0, 0.0, 0.0))
     out = cv2.remap(np.ascontiguousarray(light, np.float32), mx, my, cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_CONSTANT, borderValue=(0.0, 0.0, 0.0))
     return out * jac

@@ -21,6 +21,7 @@ from sim.errors import ProcamError
 from sim.options import NON_NEGATIVE, POSITIVE, Range, number
 from sim.projector.defocus import (SHARP_DIAMETER, defocus_blur_diameter_px, defocus_plan,
                                    disk_radius, varying_defocus)
+from sim.projector.distortion import outward_reach
 from sim.stages import Fused, Stage
 
 
@@ -77,8 +78,8 @@ class Lens:
 
     @property
     def sharp(self) -> bool:
-        """True when the lens changes nothing (no PSF, no defocus)."""
-        return self.psf_sigma == 0 and self.diameters is None
+        """True when the lens changes nothing (no PSF, no defocus, no padding)."""
+        return self.psf_sigma == 0 and self.diameters is None and self.pad == 0
 
     def apply(self, irradiance: np.ndarray) -> np.ndarray:
         """The light leaving the lens for the panel's irradiance.
@@ -131,7 +132,8 @@ def lens_for(setup: Any) -> Lens:
     The defocus disk of each pixel follows the depth of the surface point its ray hits
     (:meth:`sim.surfaces.base.Surface.projector_depth`; a pixel that misses the surface takes the
     median depth of those that hit). The padding covers the widest blur: the Gaussian's reach
-    plus the largest disk radius over the padded grid.
+    plus the largest disk radius over the padded grid, plus how far pincushion distortion carries
+    the panel's edges (:func:`~sim.projector.distortion.outward_reach`).
 
     Parameters
     ----------
@@ -141,14 +143,16 @@ def lens_for(setup: Any) -> Lens:
     Returns
     -------
     Lens
-        A sharp lens without padding when ``psf_sigma`` and ``aperture`` are 0; no defocus map
+        A sharp lens without padding when ``psf_sigma`` and ``aperture`` are 0 and no pincushion
+        distortion reaches past the panel; no defocus map
         when the surface lies in focus everywhere (a plane at the focus distance, head-on). Its
         :attr:`~Lens.surface_pitch` is the panel pixel's width where the optical axis meets the
         surface.
     """
     p = setup.projector
     w, h = p.resolution
-    reach = gaussian_radius(p.psf_sigma)
+    reach = gaussian_radius(p.psf_sigma) + outward_reach((w, h), p.distortion_k1, p.distortion_k2,
+                                                          p.lens_offset)
     pitch = throw_distance(setup) * 2 * math.tan(math.radians(p.fov) / 2) / w
     if p.aperture == 0:
         return Lens((w, h), reach, p.psf_sigma, surface_pitch=pitch)
