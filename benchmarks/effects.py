@@ -11,13 +11,16 @@ closed loop on); this script then writes, per method, the change in dB against t
     .venv/bin/python benchmarks/effects.py --out OUT [--size 64 --n-train 125 --n-test 50 --iters 300]
 
 Writes ``OUT/effects.md`` and ``OUT/effects.csv`` beside the bench's own files (``OUT/results.csv``,
-``OUT/table1.md``, ``OUT/report.html`` after ``procam report OUT``). Resumable like the bench.
+``OUT/table1.md``, ``OUT/report.html`` after ``procam report OUT``). Resumable like the bench;
+``--methods`` runs some methods only (e.g. CompenNet on a few rows, ``--only``), and the table
+keeps the runs of earlier calls (``OUT/effects_runs.csv``).
 """
 from __future__ import annotations
 
 import argparse
 import csv
 import dataclasses
+import io
 import math
 from pathlib import Path
 
@@ -82,11 +85,34 @@ def _number(text: str) -> float:
     return float(text) if text not in ("", None) else math.nan
 
 
-def table(results: Path) -> list[dict]:
+def _rows(path: Path) -> list[dict]:
+    """Table 1 rows of a results CSV (none if it does not exist)."""
+    if not path.is_file():
+        return []
+    with open(path, newline="") as f:
+        return [r for r in csv.DictReader(f) if r.get("table", "1") == "1"]
+
+
+def merge_runs(out: Path) -> list[dict]:
+    """The runs of every call so far: ``OUT/effects_runs.csv`` (the calls before) updated with the
+    bench's ``OUT/results.csv`` (this call's runs, which replace earlier ones of the same setup and
+    method), written back."""
+    store = out / "effects_runs.csv"
+    new = _rows(out / "results.csv")
+    done = {(r["setup"], r["method"]) for r in new}
+    rows = new + [r for r in _rows(store) if (r["setup"], r["method"]) not in done]
+    cols = list(dict.fromkeys(k for r in rows for k in r))
+    with io.StringIO() as text:
+        writer = csv.DictWriter(text, cols, restval="")
+        writer.writeheader()
+        writer.writerows(rows)
+        write_text(store, text.getvalue())
+    return rows
+
+
+def table(rows: list[dict]) -> list[dict]:
     """Per setup and method, the change against the base (dB) of surrogate and closed-loop PSNR,
-    and of the uncompensated captures."""
-    with open(results, newline="") as f:
-        rows = [r for r in csv.DictReader(f) if r.get("table", "1") == "1"]
+    and of the uncompensated captures, from the runs' result rows."""
     score = {(r["setup"], r["method"]): r for r in rows}
     names = ["base (all effects off)", *EFFECTS, "all (the default setup)"]
     order = [s.name for s in setups()]
@@ -137,21 +163,30 @@ def main() -> None:
     ap.add_argument("--n-train", type=int, default=125)
     ap.add_argument("--n-test", type=int, default=50)
     ap.add_argument("--iters", type=int, default=None, help="CompenNet iterations (default: quick profile)")
+    ap.add_argument("--patch", type=int, default=None, help="CompenNet training window (pixels; default: whole images)")
+    ap.add_argument("--batch", type=int, default=None, help="CompenNet batch (default: quick profile)")
+    ap.add_argument("--methods", default=",".join(METHODS),
+                    help="comma-separated methods to run (the table keeps a column per method of "
+                         f"{', '.join(METHODS)}; runs not made are blank); a later call with others resumes")
     ap.add_argument("--only", help="comma-separated setup names (effects_base is always included)")
     args = ap.parse_args()
     suite = setups()
     if args.only:
         keep = {"effects_base", *args.only.split(",")}
         suite = [s for s in suite if s.name in keep]
-    overrides = {"iters": args.iters} if args.iters else {}
-    cfg = BenchConfig(profile="quick", methods=METHODS, sizes=(args.n_train,), tables=("1",),
+    overrides = {k: v for k, v in (("iters", args.iters), ("patch", args.patch), ("batch", args.batch))
+                 if v is not None}
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    if not set(methods) <= set(METHODS):
+        ap.error(f"--methods {args.methods}: expected some of {', '.join(METHODS)}")
+    cfg = BenchConfig(profile="quick", methods=methods, sizes=(args.n_train,), tables=("1",),
                       size=args.size, n_test=args.n_test, overrides=overrides, closed_loop=True)
     run_bench(suite, args.out, cfg)
     how = (f"`python benchmarks/effects.py --out {args.out} --size {args.size} --n-train {args.n_train} "
-           f"--n-test {args.n_test}" + (f" --iters {args.iters}" if args.iters else "") + "`: "
+           f"--n-test {args.n_test}" + "".join(f" --{k} {v}" for k, v in overrides.items()) + "`: "
            f"{args.size}² canonical, {args.n_train} training / {args.n_test} test pairs, quick profile"
-           + (f", CompenNet {args.iters} iterations" if args.iters else "") + ". Base row: absolute dB.")
-    write(args.out, table(args.out / "results.csv"), how)
+           + "".join(f", CompenNet {k} {v}" for k, v in overrides.items()) + ". Base row: absolute dB.")
+    write(args.out, table(merge_runs(args.out)), how)
     print((args.out / "effects.md").read_text())
 
 
