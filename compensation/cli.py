@@ -11,16 +11,31 @@ from sim.errors import ProcamError
 from sim.setup import load_setups, select_setups
 
 
+MIN_SIDE = 4
+"""Fewest canonical pixels along a side that ``render``, ``bench`` and ``study`` take."""
+
+
+def _side(text: str) -> int:
+    """Parse a square canonical size ``256`` (>= :data:`MIN_SIDE`)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < MIN_SIDE:
+        raise argparse.ArgumentTypeError(f"size {text!r}: expected an integer >= {MIN_SIDE} (pixels)")
+    return value
+
+
 def _size(text: str) -> tuple[int, int]:
-    """Parse ``256`` or ``320x240`` into (width, height)."""
+    """Parse ``256`` or ``320x240`` into (width, height), each >= :data:`MIN_SIDE`."""
     try:
         parts = [int(p) for p in text.lower().split("x")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"size {text!r}: expected N or WxH in pixels") from None
     if len(parts) == 1:
         parts = parts * 2
-    if len(parts) != 2 or min(parts) < 4:
-        raise argparse.ArgumentTypeError(f"size {text!r}: expected N or WxH, each >= 4 pixels")
+    if len(parts) != 2 or min(parts) < MIN_SIDE:
+        raise argparse.ArgumentTypeError(f"size {text!r}: expected N or WxH, each >= {MIN_SIDE} pixels")
     return parts[0], parts[1]
 
 
@@ -398,7 +413,7 @@ def add_bench(sub) -> None:
     p.add_argument("--methods", default="compennet,compennet-nosurf", help="comma-separated methods")
     p.add_argument("--sizes", type=_int_list, default=(125, 250, 500), help="training sizes, e.g. 125,250,500")
     p.add_argument("--tables", default="1,2,3", help="which tables (default 1,2,3)")
-    p.add_argument("--size", type=_positive, help="canonical size override (pixels)")
+    p.add_argument("--size", type=_side, help=f"canonical size override (pixels, >= {MIN_SIDE})")
     p.add_argument("--white", default="white",
                    help="white-surface setup for pre-training (Table 2; with a suite only)")
     p.add_argument("--only", metavar="NAME[,NAME…]", default=None,

@@ -91,3 +91,20 @@ def test_an_empty_selection_is_refused_and_named(tmp_path, capsys, argv, message
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["bench", "suite", "--size", "1"], "size '1': expected an integer >= 4 (pixels)"),
+    (["bench", "suite", "--size", "3x3"], "size '3x3': expected an integer >= 4 (pixels)"),
+    (["study", "ambient", "--size", "2"], "size '2': expected N or WxH, each >= 4 pixels"),
+    (["render", "suite", "--size", "0x8"], "size '0x8': expected N or WxH, each >= 4 pixels"),
+])
+def test_a_canonical_size_render_refuses_is_refused_by_every_command(tmp_path, capsys, argv, message):
+    """bench, study and render share the smallest canonical side: none accepts a size the renderer
+    cannot use, before anything is written."""
+    with pytest.raises(SystemExit) as exit_:
+        main([*argv, "--out", str(tmp_path / "out")])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
