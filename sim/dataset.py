@@ -3,8 +3,9 @@ resumably.
 
 The root's lock is held (flock) by the one render writing it; ``frames.json`` is written before
 the shared projector frames, a setup's ``render.json`` before its first capture and its
-``meta.json`` last. Every input is checked before anything is written (:func:`check_render`, the projector frames
-read). Every PNG is written to a temporary file and renamed, so a killed run leaves no truncated
+``meta.json`` last. Every input is checked before anything is written (:func:`check_render`, the
+projector frames read); a render that fails before its first capture (what only rendering finds)
+leaves no record that blocks the corrected run. Every PNG is written to a temporary file and renamed, so a killed run leaves no truncated
 image; a re-run refuses a root or setup folder whose records (``frames.json``, ``setup.toml``,
 ``render.json``) differ from what it would write, rewrites any file that is damaged or missing and
 finishes the rest.
@@ -29,7 +30,7 @@ from tqdm import tqdm
 
 from sim import camera, images, layout, registration, seeds
 from sim.capture import Simulator, capture_workers, pipelined
-from sim.errors import DatasetError, SetupError
+from sim.errors import DatasetError, ProcamError, SetupError
 from sim.fidelity import check_level, check_spp, describe, resolve
 from sim.io import (atomic_write, intact_png, read_json, remove_temporaries, write_json, write_png,
                     write_text)
@@ -169,14 +170,29 @@ def _read_frames_manifest(marker: Path) -> dict:
     return manifest
 
 
+def _frames_in_use(root: Path) -> bool:
+    """Whether any setup folder of a root holds captures (its ``render.json`` or ``meta.json``
+    exists): only then do the root's frames belong to a dataset."""
+    return any((d / layout.RECORD_FILE).exists() or (d / layout.META_FILE).exists()
+               for d in root.iterdir() if d.is_dir())
+
+
 def _check_frames_manifest(root: Path, spec: FrameSpec) -> dict | None:
-    """The root's ``frames.json`` (None if there is none yet), refused unless its frames are made
-    as ``spec`` makes them."""
+    """The root's ``frames.json`` (None if there is none yet, or if its frames were made otherwise
+    but no setup captured them: a render that failed before its first capture, whose frames are
+    removed here so that the corrected run starts afresh), refused unless its frames are made as
+    ``spec`` makes them."""
     marker = root / layout.FRAMES_FILE
     if not marker.exists():
         return None
     manifest = _read_frames_manifest(marker)
     if not _same_source(manifest["source"], spec.source()):
+        if not _frames_in_use(root):
+            for split in layout.SPLITS:
+                for path in (root / split).glob("img_*.png"):
+                    path.unlink()
+            marker.unlink()
+            return None
         raise DatasetError(f"{marker}: this root's projector frames were made with "
                            f"{manifest['source']}, not {spec.source()}; use another --out")
     return manifest
@@ -484,7 +500,7 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         write_text(out / layout.SETUP_FILE, dump_setup(setup))
         try:
             return _render(out, setup, spec, frames, fidelity, spp, expected, overwrite, progress)
-        except NoResponse:
+        except ProcamError:
             if not (out / layout.RECORD_FILE).exists():  # nothing rendered: the corrected setup may start
                 (out / layout.SETUP_FILE).unlink(missing_ok=True)
             raise

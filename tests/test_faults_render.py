@@ -251,12 +251,12 @@ def test_killed_at_every_stage_resumes_to_the_same_bytes(reference, tmp_path, ca
     _killed_render(argv, "data/ref/img_*.png", nth=5)  # while writing the shared frames
     assert json.loads((root / "frames.json").read_text())["source"]["seed"] == 0  # written first
     assert not (root / "tiny").exists()
-    # resumed with another frame seed: refused, nothing touched
+    _killed_render(argv, "raw/*/img_*.png", nth=10)  # while writing captures
+    assert (root / "tiny" / "render.json").exists() and not (root / "tiny" / "meta.json").exists()
+    # resumed with another frame seed: refused (captures depend on the frames), nothing touched
     before = _snapshot(root)
     _refused(capsys, [*argv, "--frame-seed", "7"], str(root / "frames.json"), "'seed': 0", "'seed': 7")
     assert _snapshot(root) == before
-    _killed_render(argv, "raw/*/img_*.png", nth=10)  # while writing captures
-    assert (root / "tiny" / "render.json").exists() and not (root / "tiny" / "meta.json").exists()
     _killed_render(argv, "meta.json")  # while writing the record of a finished setup
     assert list(root.rglob(".*.tmp")) and not (root / "tiny" / "meta.json").exists()
     assert main(argv) == 0
@@ -439,3 +439,23 @@ def test_ctrl_c_ends_with_a_line_not_a_traceback(tmp_path, capsys, monkeypatch):
     assert main(["render", str(tiny_setup_file(tmp_path)), "--out", str(tmp_path / "data"), *ARGS]) == 130
     err = capsys.readouterr().err
     assert "procam: interrupted" in err and "run the same command again" in err and "Traceback" not in err
+
+
+def test_the_fix_a_failed_render_suggests_is_accepted(tmp_path, capsys):
+    """A render refused before its first capture (the checkerboard not found at a canonical size too
+    small for it) leaves neither its setup record nor frames that block the fixes it suggests: the
+    same root takes the corrected setup (the exact map) at another --size, its frames remade with
+    no stale frame left. Frames that captures depend on stay protected."""
+    data = tmp_path / "data"
+    homography = tiny_setup_file(tmp_path, registration={"method": "homography"})
+    small = ["--size", "8", "--n-train", "3", "--n-test", "1", "--quiet"]
+    _refused(capsys, ["render", str(homography), "--out", str(data), *small],
+             "checkerboard corners were not found", "use a larger size")
+    assert not (data / "tiny" / "setup.toml").exists()
+    exact = tiny_setup_file(tmp_path / "fixed", registration={"method": "exact"})
+    other = ["--size", "16", "--n-train", "2", "--n-test", "1", "--quiet"]
+    assert main(["render", str(exact), "--out", str(data), *other]) == 0, capsys.readouterr().err
+    assert json.loads((data / "frames.json").read_text())["source"]["width"] == 16
+    assert sorted(p.name for p in (data / "train").iterdir()) == ["img_0001.png", "img_0002.png"]
+    _refused(capsys, ["render", str(exact), "--out", str(data), *small],
+             "this root's projector frames were made with")  # now in use: refused
