@@ -300,7 +300,9 @@ class Probe:
     floors, floors_encoded : dict[str, float]
         The camera's RMS noise per class: linear signal units, and encoded values in [0, 1]
         (a real 8-bit noisy capture of the reference by the sensor alone,
-        :func:`sim.camera.without_optics`, against its noiseless encoding).
+        :func:`sim.camera.sensor_alone`, against its noiseless encoding: neither the optics nor
+        the picture processing, a deterministic rendering of the encoded image that the
+        noiseless encoding and the errors of :meth:`errors` do not have).
     reference_seconds : float
         Wall time of one reference capture (both renders), seconds; the first frame, which
         compiles the kernels, is left out when there are others.
@@ -332,7 +334,7 @@ class Probe:
             signal = camera.sensor_signal(mean, cfg.exposure, cfg.white_balance)
             self.floors[k] = noise_floor(signal, cfg)
             rng = seeds.noise_rng(setup.render.seed, seeds.REFERENCE, i)
-            noisy = camera.capture(mean, camera.without_optics(cfg), rng).astype(np.float64) / 255
+            noisy = camera.capture(mean, camera.sensor_alone(cfg), rng).astype(np.float64) / 255
             clean = camera.encode(signal.astype(np.float64), cfg.response)
             self.floors_encoded[k] = float(np.sqrt(np.mean((noisy - clean) ** 2)))
         self.reference_seconds = float(np.mean(seconds[1:] or seconds))  # the first one compiles

@@ -99,8 +99,9 @@ class Renderer:
         numpy.ndarray
             float32 (Hp + 2 pad, Wp + 2 pad, 3) with ``pad = self.lens.pad``: the projector's
             stages before the light transport (:data:`sim.projector.chain.EMISSION`: the scaler,
-            response, black level, primaries mixing, then the lens, PSF and depth-dependent
-            defocus, its distortion, the surface's translucency and the projector's flare).
+            response, black level, white segment, primaries mixing and dynamic lamp, then the
+            lens, PSF and depth-dependent defocus, its distortion, the surface's translucency and
+            the projector's flare).
         """
         frame = np.asarray(frame)
         x = to_float(frame) if frame.dtype == np.uint8 else frame.astype(np.float32)

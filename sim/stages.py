@@ -1,4 +1,5 @@
-"""Stages of a device's chain: the keys each declares, what it does, flagged optical, linear or random.
+"""Stages of a device's chain: the keys each declares, what it does, flagged optical, processing,
+linear or random.
 
 A stage is declared by its own module: its options (a frozen dataclass of keys declared with
 :mod:`sim.options`, the keys of the device's setup section it reads), its function and its
@@ -7,9 +8,10 @@ flags, as one :class:`Stage`. The projector (:data:`sim.projector.chain.CHAIN`) 
 :class:`Fused` group standing for consecutive stages applied by one function (fused for speed).
 The device's setup section is composed from the stages' options (:func:`sim.options.combine`,
 in :mod:`sim.setup.schema`), :func:`run` applies a chain, and what depends on a kind of stage is
-derived from the flags instead of kept by hand: :func:`switch_off` of the optical stages gives
-the camera's sensor alone (what :mod:`sim.fidelity` measures the noise floor with),
-:func:`streams_version` of the random stages the version of a capture's random streams.
+derived from the flags instead of kept by hand: :func:`switch_off` of the optical and the
+processing stages gives the camera's sensor alone (what :mod:`sim.fidelity` measures the noise
+floor with), :func:`streams_version` of the random stages the version of a capture's random
+streams.
 """
 from __future__ import annotations
 
@@ -36,6 +38,9 @@ class Stage:
     None for a stage applied by its :class:`Fused` group or outside the chain (by Mitsuba)."""
     optical: bool = False
     """The lens or another optical element (not the sensor nor its processing)."""
+    processing: bool = False
+    """Processing of the encoded image after the response curve (tone, colour, sharpening): a
+    rendering of the sensor's measurement, not part of it."""
     linear: bool = False
     """Linear in the projector's light: a sum of inputs gives the sum of outputs."""
     random: bool = False
@@ -52,8 +57,11 @@ class Stage:
         if not set(self.off) <= set(self.keys):
             raise ValueError(f"stage {self.name!r}: switches off keys it does not read: "
                              f"{sorted(set(self.off) - set(self.keys))}")
-        if self.optical and not self.off:
-            raise ValueError(f"stage {self.name!r}: an optical stage must be able to be switched off")
+        if self.optical and self.processing:
+            raise ValueError(f"stage {self.name!r}: an optical stage does not process the encoded image")
+        if (self.optical or self.processing) and not self.off:
+            kind = "an optical" if self.optical else "a processing"
+            raise ValueError(f"stage {self.name!r}: {kind} stage must be able to be switched off")
 
     @property
     def keys(self) -> tuple[str, ...]:

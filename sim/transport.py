@@ -19,12 +19,13 @@ and can be measured from a handful of Mitsuba renders:
    frame and refuses an operator that misses it. The Monte-Carlo error of the calibration spp is
    therefore *frozen* into ``T``: the same for every capture instead of fresh per capture.
 
-The projector's scaler, response, black level, primaries mixing, lens (PSF and the defocus of
-each pixel's depth), lens distortion, the surface's translucency and the projector's flare are
-applied before ``T`` (:meth:`sim.render.Renderer.emit`; all after the response are linear), so
-``T`` is the scene's light transport alone; its projector side is the lens's padded grid
-(:class:`sim.projector.Lens`), which keeps the light blurred past the panel's border.
-Inter-reflection (a corner) makes ``T`` dense: this level declines such setups
+The projector's scaler, response, black level, colour-wheel white segment, primaries mixing and
+dynamic lamp, lens (PSF and the defocus of each pixel's depth), lens distortion, the surface's
+translucency and the projector's flare are applied before ``T`` (:meth:`sim.render.Renderer.emit`;
+all after the photometry are linear; the white segment and the dynamic lamp are not, but act on
+the frame before ``T`` sees it), so ``T`` is the scene's light transport alone; its projector
+side is the lens's padded grid (:class:`sim.projector.Lens`), which keeps the light blurred past
+the panel's border. Inter-reflection (a corner) makes ``T`` dense: this level declines such setups
 (:func:`check_supported`) and ``auto`` falls back to path tracing.
 """
 from __future__ import annotations

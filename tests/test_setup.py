@@ -359,7 +359,7 @@ def test_unknown_camera_key_is_refused(tmp_path):
     path = tmp_path / "flare.toml"
     path.write_text('name = "b"\n[camera]\nflare = 0.3\n')
     with pytest.raises(SetupError, match=r"flare\.toml: camera\.flare: unknown key; valid keys of "
-                                         r"\[camera\]: aperture_radius, bayer, "):
+                                         r"\[camera\]: adaptive_tone, aperture_radius, bayer, "):
         load_setup(path)
 
 

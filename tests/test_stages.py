@@ -58,6 +58,10 @@ def test_stage_rules():
         Stage("x", KeyA, "", streams=lambda: 1)
     with pytest.raises(ValueError, match="must be able to be switched off"):
         Stage("x", KeyA, "", optical=True)
+    with pytest.raises(ValueError, match="a processing stage must be able to be switched off"):
+        Stage("x", KeyA, "", processing=True)
+    with pytest.raises(ValueError, match="an optical stage does not process"):
+        Stage("x", KeyA, "", optical=True, processing=True, off={"a": 0.0})
     with pytest.raises(ValueError, match="keys it does not read"):
         Stage("x", KeyA, "", off={"b": 0})
     with pytest.raises(ValueError, match="random, without a streams version"):
@@ -157,6 +161,19 @@ def test_the_optical_stages_are_what_the_fidelity_probe_switches_off():
     assert camera.apply_optics(rad, camera.without_optics(HARDWARE)) is rad
 
 
+def test_the_processing_stages_are_what_the_sensor_alone_also_switches_off():
+    """The processing of the encoded image sits in the sensor's group between the response curve
+    and the quantisation, is not linear, and is off for the sensor alone."""
+    names = [s.name for s in camera.STAGES]
+    assert [s.name for s in camera.STAGES if s.processing] == ["adaptive_tone", "style", "sharpen"]
+    assert names[names.index("response"):] == ["response", "adaptive_tone", "style", "sharpen", "jpeg"]
+    assert not any(s.linear or s.optical for s in camera.STAGES if s.processing)
+    styled = replace(HARDWARE, adaptive_tone=0.5, style_contrast=0.3, style_saturation=1.2,
+                     sharpen_amount=0.5)
+    assert camera.sensor_alone(styled) == camera.without_optics(HARDWARE)
+    assert all(s.is_off(camera.sensor_alone(styled)) for s in camera.STAGES if s.processing)
+
+
 def test_the_noise_version_is_the_random_stages():
     assert [s.name for s in camera.STAGES if s.random] == ["noise"]
     assert camera.noise_version() == stream_version() in (2, 3)
@@ -198,17 +215,19 @@ def test_only_the_random_stages_draw():
 
 def test_the_fidelity_probe_captures_with_the_sensor_alone(monkeypatch):
     """What the fidelity probe switches off for its encoded noise floor is derived from the
-    optical flags."""
+    optical and processing flags: the picture processing is not noise."""
     from sim.fidelity import Probe
 
     seen = []
     real = camera.capture
     monkeypatch.setattr(camera, "capture", lambda rad, cfg, rng: seen.append(cfg) or real(rad, cfg, rng))
     setup = tiny_setup(camera={"resolution": [16, 16], "psf_sigma": 0.6, "vignetting": 0.2,
-                               "distortion": 0.01})
+                               "distortion": 0.01, "style_contrast": 0.3, "sharpen_amount": 0.5,
+                               "adaptive_tone": 0.5})
     Probe(setup, classes=("smooth",), reference_spp=4, window=None)
-    assert seen == [camera.without_optics(setup.camera)]
+    assert seen == [camera.sensor_alone(setup.camera)]
     assert seen[0].psf_sigma == seen[0].distortion == seen[0].vignetting == 0.0
+    assert seen[0].style_contrast == seen[0].sharpen_amount == seen[0].adaptive_tone == 0.0
 
 
 # ---------------------------------------------------------------------------------- projector
@@ -217,7 +236,7 @@ def test_projector_stages_after_the_lens_are_linear():
     """The light transport runs after the lens (``defocus``): a capture is the lamp's gain times
     the operator's output, exact only if every later stage is linear."""
     names = [s.name for s in projector.STAGES]
-    assert names[:5] == ["scaler", "response", "mixing", "psf", "defocus"]
+    assert names[:7] == ["scaler", "response", "white_boost", "mixing", "dynamic_lamp", "psf", "defocus"]
     assert all(s.linear for s in projector.STAGES[names.index("defocus") + 1:])
     assert [s.name for s in projector.STAGES if s.optical] == ["psf", "defocus", "distortion",
                                                                 "translucency", "flare"]

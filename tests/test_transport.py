@@ -93,6 +93,36 @@ def test_every_linear_effect_stays_exact():
     assert not np.array_equal(seen[0], got) and np.abs(seen[0] - seen[1]).max() <= 1e-4 * want.max()
 
 
+def test_content_dependent_effects_stay_exact():
+    """The projector's dynamic lamp and white segment act on the frame before T (in its emission),
+    the camera's adaptive tone, picture style and sharpening on each capture after it: none is
+    linear, yet with all of them on T p still equals the direct render of p at the calibration spp
+    and seed, and the camera's captures of the two agree."""
+    keys = {"resolution": [32, 32], "dynamic_lamp": 0.55, "dynamic_lamp_statistic": "mean",
+            "white_boost": 1.0, "black_level": 0.002}
+    processing = {"adaptive_tone": 0.8, "style_contrast": 0.5, "style_saturation": 1.4,
+                  "sharpen_radius": 1.0, "sharpen_amount": 1.0}
+    setup = tiny_setup(projector=keys, camera={"resolution": [32, 32], **processing},
+                       surface={"texture": "noise"}, render={"fidelity": "transport", "spp": 4})
+    tr = TransportRenderer(setup)
+    assert tr.operator.info.verify_error <= 1e-4
+    frame = np.random.default_rng(8).integers(0, 256, (32, 32, 3), dtype=np.uint8)
+    irr = tr.emit(frame)
+    plain = Renderer(replace(setup, projector=replace(setup.projector, dynamic_lamp=0.0, white_boost=0.0)),
+                     "direct", 4)
+    assert np.abs(irr - plain.emit(frame)).max() > 0.01
+    direct = Renderer(setup, "direct", 4)
+    np.testing.assert_array_equal(direct.emit(frame), irr)
+    want = direct.projector_radiance(irr, tr.operator.info.seed)
+    got = tr.projector_radiance(irr)
+    assert np.abs(got - want).max() <= 1e-4 * want.max()
+    cam = replace(setup.camera, exposure=1.0 / float(want.max()))
+    seen = [camera.capture(x, cam, None).astype(int) for x in (got, want)]
+    plain_cam = camera.capture(want, camera.sensor_alone(cam), None).astype(int)
+    assert np.abs(seen[0] - plain_cam).max() > 10  # the processing is on
+    assert np.abs(seen[0] - seen[1]).max() <= 1
+
+
 def test_exactly_linear_and_batched(default_op):
     """T (a + b) = T a + T b; the torch batch path equals the per-image NumPy path."""
     _, tr = default_op

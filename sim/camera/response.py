@@ -349,5 +349,6 @@ class ResponseOptions:
 
 
 RESPONSE = Stage("response", ResponseOptions, "response curve and 8-bit quantisation, at once from "
-                 "the linear signal (codes)")
+                 "the linear signal (codes); with a processing stage on, the curve (encode) before "
+                 "the processing and the quantisation (quantise) after it")
 """The camera's response stage."""

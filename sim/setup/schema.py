@@ -88,9 +88,9 @@ class ProjectorView:
 ProjectorConfig = combine(
     "ProjectorConfig", (ProjectorView, *(stage.options for stage in projector_chain.STAGES)),
     """The projector: the keys of :class:`ProjectorView` (pose, field of view, panel), then those
-    of each stage of :data:`sim.projector.chain.CHAIN` in order (scaler, response, mixing, lens,
-    distortion, translucency, flare, brightness, lamp), each declared and documented by its stage's
-    options.""", __name__)
+    of each stage of :data:`sim.projector.chain.CHAIN` in order (scaler, response, white segment,
+    mixing, dynamic lamp, lens, distortion, translucency, flare, brightness, lamp), each declared
+    and documented by its stage's options.""", __name__)
 
 
 @dataclass(frozen=True)
@@ -118,7 +118,7 @@ CameraConfig = combine(
     "CameraConfig", (CameraView, *(stage.options for stage in camera_chain.STAGES)),
     """The camera: the keys of :class:`CameraView` (pose, field of view, resolution, thin lens),
     then those of each stage of :data:`sim.camera.chain.CHAIN` in order (optics, exposure, noise,
-    response, …), each declared and documented by its stage's options.""", __name__)
+    response, processing, JPEG, …), each declared and documented by its stage's options.""", __name__)
 
 
 @dataclass(frozen=True)
