@@ -3,7 +3,9 @@
 The base is ``scenes/default.toml`` (the paper's hardware) with every hardware effect turned off
 (pinhole projector lens, steady lamp, perfect box-filtered RGB camera, manual exposure, exact
 registration); each row turns ONE effect back on at the default setup's own magnitude (those of
-``scenes/paper.toml``, with their sources in the file); the last row is the default setup itself.
+``scenes/paper.toml``, with their sources in the file), then the content-dependent processing the
+default leaves off at the magnitudes its comments give (:data:`CONTENT`); the last rows are the
+default setup itself and the default with all of that processing on.
 Every setup is rendered and benchmarked by ``procam bench`` (Table 1 jobs at one training size,
 closed loop on); this script then writes, per method, the change in dB against the base, surrogate
 (π†(x̃) against x) and closed loop (the compensation projected back through the setup)::
@@ -29,6 +31,17 @@ from sim.io import write_text
 from sim.setup import load_setup, scene_path
 
 METHODS = ("tps", "tps-textured", "nayar", "compennet")
+CONTENT = {  # row name -> values: content-dependent processing, off in the default setup; the
+    # magnitudes its comments give (scenes/default.toml)
+    "projector dynamic lamp (depth 0.55, the measured one)": {("projector", "dynamic_lamp"): 0.55},
+    "DLP white segment (boost 0.7, assumed: colour light 59 % of white)": {("projector", "white_boost"): 0.7},
+    "camera adaptive tone (0.5, assumed)": {("camera", "adaptive_tone"): 0.5},
+    "camera picture style (Standard-like, assumed)": {("camera", "style_contrast"): 0.3,
+                                                      ("camera", "style_saturation"): 1.2,
+                                                      ("camera", "sharpen_amount"): 0.5},
+}
+"""Rows of effects the default setup leaves off, with their values; also added, all together, to
+the default setup in the table's last row."""
 EFFECTS = {  # row name -> (section, key) pairs taken from the default setup
     "surface relief": (("surface", "relief"),),
     "projector lens PSF": (("projector", "psf_sigma"),),
@@ -77,14 +90,16 @@ def _value(setup, section: str, key: str):
 
 
 def setups() -> list:
-    """The base, one setup per effect, and the default setup (all effects), in table order."""
+    """The base, one setup per effect (:data:`EFFECTS`, then :data:`CONTENT`), the default setup
+    (all its effects) and the default setup with every content-dependent effect, in table order."""
     default = load_setup(scene_path("default"))
     base = _with(default, "effects_base", OFF)
     out = [base]
-    for i, (row, keys) in enumerate(EFFECTS.items(), start=1):
-        on = {k: _value(default, *k) for k in keys}
+    rows = [{k: _value(default, *k) for k in keys} for keys in EFFECTS.values()] + list(CONTENT.values())
+    for i, on in enumerate(rows, start=1):
         out.append(_with(base, f"effects_{i:02d}", on))
     out.append(dataclasses.replace(default, name="effects_all"))
+    out.append(_with(default, "effects_all_content", {k: v for on in CONTENT.values() for k, v in on.items()}))
     return out
 
 
@@ -121,7 +136,8 @@ def table(rows: list[dict]) -> list[dict]:
     """Per setup and method, the change against the base (dB) of surrogate and closed-loop PSNR,
     and of the uncompensated captures, from the runs' result rows."""
     score = {(r["setup"], r["method"]): r for r in rows}
-    names = ["base (all effects off)", *EFFECTS, "all (the default setup)"]
+    names = ["base (all effects off)", *EFFECTS, *CONTENT, "all (the default setup)",
+             "all + content-dependent processing"]
     order = [s.name for s in setups()]
     out = []
     for name, setup in zip(names, order):
