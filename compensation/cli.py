@@ -40,7 +40,7 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def cmd_render(args: argparse.Namespace) -> None:
-    from sim.dataset import FrameSpec, check_render, write_setup
+    from sim.dataset import FrameSpec, check_counts, check_render, write_setup
 
     setups = select_setups(load_setups(args.setup), args.only, args.setup)
     if args.list:
@@ -49,6 +49,7 @@ def cmd_render(args: argparse.Namespace) -> None:
     spec = FrameSpec(args.n_train, args.n_test, args.size, args.frame_seed, args.images, args.test_frames)
     for setup in setups:  # every setup of a suite is checked before the first is rendered
         check_render(setup, spec, args.fidelity, args.spp)
+    check_counts(Path(args.out), spec, [s.name for s in setups])
     for setup in setups:
         out = write_setup(Path(args.out), setup, spec, args.fidelity, args.spp,
                           progress=not args.quiet, overwrite=args.overwrite)

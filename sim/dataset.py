@@ -222,8 +222,13 @@ def write_frames(root: Path, spec: FrameSpec, frames: dict[str, np.ndarray]) -> 
     """
     manifest = _check_frames_manifest(root, spec)
     counts = {k: len(v) for k, v in frames.items()}
-    if manifest is not None:
+    if manifest is not None and _frames_in_use(root):
         counts = {k: max(v, manifest["counts"].get(k, 0)) for k, v in counts.items()}
+    else:  # no captures depend on the frames: exactly this render's, none left over
+        for split, n in counts.items():
+            for path in (root / split).glob("img_*.png"):
+                if (number := layout.image_number(path.name)) is not None and number > n:
+                    path.unlink()
     write_json(root / layout.FRAMES_FILE, {"source": spec.source(), "counts": counts})
     for split, stack in frames.items():
         for i, frame in enumerate(stack, start=1):
@@ -265,6 +270,56 @@ def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
         choice = resolve(setup, fidelity, spp)
         record.update(fidelity=choice.level, spp=choice.spp)
     return record
+
+
+def check_counts(root: Path, spec: FrameSpec, names: list[str]) -> None:
+    """Refuse a render that would leave setups of a root with fewer captures than its frames.
+
+    The official CompenNet loader reads every frame of ``ROOT/train`` and ``ROOT/test`` against
+    each setup's captures, so the frames of a root and the captures of each of its setups must
+    agree in number. A render of ``names`` with ``spec`` brings the root's frames to the larger of
+    its own and ``spec``'s counts and captures ``spec``'s counts for ``names``: it is refused when
+    that leaves behind a finished setup of the root that it does not render, or the setups it
+    renders.
+
+    Parameters
+    ----------
+    root : Path
+        Dataset root (it need not exist).
+    spec : FrameSpec
+        The frames of the render.
+    names : list of str
+        The setups the render writes.
+
+    Raises
+    ------
+    DatasetError
+        Naming the setups left behind, the counts and what to do.
+    """
+    root = Path(root)
+    want = {TRAIN: spec.n_train, TEST: spec.n_test}
+    marker = root / layout.FRAMES_FILE
+    if marker.exists() and _frames_in_use(root):
+        held = _read_frames_manifest(marker)["counts"]
+        if any(held.get(split, 0) > n for split, n in want.items()):
+            raise DatasetError(
+                f"{marker}: this root holds {held.get(TRAIN, 0)} training and {held.get(TEST, 0)} test "
+                f"frames; capturing {spec.n_train} and {spec.n_test} would leave the setups rendered now "
+                "with fewer captures than the root's frames, which the official loader cannot read; "
+                "use --n-train/--n-test of at least the root's counts, or another --out")
+    behind = []
+    for meta in sorted(root.glob(f"*/{layout.META_FILE}")):
+        if meta.parent.name in names:
+            continue
+        counts = _meta_counts(meta)
+        if any(counts.get(split, 0) < n for split, n in want.items()):
+            behind.append(f"{meta.parent.name} ({counts.get(TRAIN, 0)} training, {counts.get(TEST, 0)} test)")
+    if behind:
+        raise DatasetError(
+            f"{root}: rendering {spec.n_train} training and {spec.n_test} test frames would leave "
+            f"{', '.join(behind)} with fewer captures than the root's frames, which the official "
+            "loader cannot read; render those setups in the same command (a suite, or --only), "
+            "or use another --out")
 
 
 def _read_record(path: Path) -> dict:

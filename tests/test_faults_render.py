@@ -17,7 +17,7 @@ import pytest
 
 from compensation.cli import main
 from helpers import TINY_RENDER as ARGS
-from helpers import tiny_setup_file
+from helpers import tiny_setup_file, tiny_toml
 from sim import camera, registration
 from sim.errors import ProcamError
 from sim.io import read_png, write_png
@@ -459,3 +459,23 @@ def test_the_fix_a_failed_render_suggests_is_accepted(tmp_path, capsys):
     assert sorted(p.name for p in (data / "train").iterdir()) == ["img_0001.png", "img_0002.png"]
     _refused(capsys, ["render", str(exact), "--out", str(data), *small],
              "this root's projector frames were made with")  # now in use: refused
+
+
+def test_a_root_stays_readable_by_the_official_loader(tmp_path, capsys):
+    """Every setup of a root keeps as many captures as the root has frames: growing the frames for
+    one setup while another is finished with fewer, or capturing fewer than the root's frames, is
+    refused before anything is written."""
+    data = tmp_path / "data"
+    a = tiny_setup_file(tmp_path)
+    b = tmp_path / "other.toml"
+    b.write_text(tiny_toml("other", 64, texture="checker"))
+    assert main(["render", str(a), "--out", str(data), *ARGS]) == 0
+    assert main(["render", str(b), "--out", str(data), *ARGS]) == 0
+    before = _snapshot(data)
+    more = ["--size", "32", "--n-train", "3", "--n-test", "1", "--quiet"]
+    _refused(capsys, ["render", str(a), "--out", str(data), *more],
+             "would leave other (2 training, 1 test) with fewer captures", "official loader")
+    fewer = ["--size", "32", "--n-train", "1", "--n-test", "1", "--quiet"]
+    _refused(capsys, ["render", str(a), "--out", str(data), *fewer],
+             "this root holds 2 training and 1 test frames", "official loader")
+    assert _snapshot(data) == before
