@@ -82,3 +82,22 @@ def test_ray_bench_equals_local(tmp_path):
     rows = _table(tmp_path / "ray" / "results.csv")
     assert {r["status"] for r in rows} == {"ok"} and all(r["cl_psnr"] for r in rows)
     assert all((tmp_path / "ray" / r["run"] / "closed_loop" / "img_0002.png").exists() for r in rows)
+
+
+@pytest.mark.parametrize("kind", ["closed port", "ray:// closed port", "unknown host", "malformed"])
+def test_an_unreachable_ray_address_is_refused_at_once(kind, monkeypatch):
+    """An address nothing listens at is refused with the address named, before Ray's own minutes of
+    retries (the probe is a TCP connection with a timeout); Ray is never initialised."""
+    import socket
+
+    pytest.importorskip("ray")
+    import ray
+
+    with socket.socket() as probe:  # a port that was free a moment ago: nothing listens there
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    address = {"closed port": f"127.0.0.1:{port}", "ray:// closed port": f"ray://127.0.0.1:{port}",
+               "unknown host": "no-such-host.invalid:6379", "malformed": "127.0.0.1"}[kind]
+    monkeypatch.setattr(ray, "init", lambda *a, **k: pytest.fail("ray.init called"))
+    with pytest.raises(ProcamError, match=f"--address {address}: "):
+        make_executor("ray", address)

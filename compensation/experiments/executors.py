@@ -10,6 +10,7 @@ job never stops the others.
 from __future__ import annotations
 
 import os
+import socket
 import traceback
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -96,6 +97,34 @@ class LocalExecutor:
         return float(torch.cuda.device_count())
 
 
+CONNECT_TIMEOUT_S = 10.0
+"""Seconds to wait for a Ray cluster's address to accept a connection before giving up (Ray itself
+retries an unreachable address for minutes)."""
+
+
+def _check_reachable(address: str | None) -> None:
+    """Refuse, within :data:`CONNECT_TIMEOUT_S`, a ``host:port`` or ``ray://host:port`` address
+    that accepts no TCP connection (None and ``auto`` are left to Ray: a local lookup).
+
+    Raises
+    ------
+    ProcamError
+        If the address is malformed or nothing listens there.
+    """
+    if address in (None, "auto", "local"):
+        return
+    target = address.split("://", 1)[1] if "://" in address else address
+    host, _, port = target.rpartition(":")
+    if not host or not port.isdigit():
+        raise ProcamError(f"--address {address}: expected auto, HOST:PORT or ray://HOST:PORT")
+    try:
+        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        raise ProcamError(f"--address {address}: cannot connect to a Ray cluster there within "
+                          f"{CONNECT_TIMEOUT_S:g} s ({exc}); start one with 'ray start --head' or "
+                          "check the address") from None
+
+
 class RayExecutor:
     """Each job one Ray task declaring its ``num_cpus`` and ``num_gpus``.
 
@@ -122,6 +151,7 @@ class RayExecutor:
             env = {"PYTHONPATH": path, "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY", "PASSIVE")}
             if "PROCAM_VARIANT" in os.environ:  # the Mitsuba variant this process was told to use
                 env["PROCAM_VARIANT"] = os.environ["PROCAM_VARIANT"]
+            _check_reachable(address)
             try:
                 ray.init(address=address, include_dashboard=False, log_to_driver=False,
                          runtime_env={"env_vars": env})
