@@ -87,6 +87,25 @@ def test_train_overwrite_never_deletes_files_a_run_did_not_write(setup_dir, tmp_
     assert (run / "tps.npz").is_file() and not (run / "nayar.npz").exists()
 
 
+def test_train_out_at_a_symbolic_link_is_refused_and_leaves_nothing_behind(setup_dir, tmp_path, capsys):
+    """--out naming a symbolic link to a run (or a dangling one) is refused before training; the run
+    it points to stays as it was, nothing is left beside the link, and the folder itself is taken."""
+    run = tmp_path / "runs" / "nayar"
+    assert main(["train", str(setup_dir), "--method", "nayar", "--out", str(run), *TRAIN]) == 0
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    link = tmp_path / "link"
+    link.symlink_to(run, target_is_directory=True)
+    dangling = tmp_path / "dangling"
+    dangling.symlink_to(tmp_path / "nowhere", target_is_directory=True)
+    for out in (link, dangling):
+        _fails(capsys, ["train", str(setup_dir), "--method", "tps", "--out", str(out), "--overwrite", *TRAIN],
+               str(out), "is a symbolic link", "give the folder itself")
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dangling", "link", "runs"]
+    assert main(["train", str(setup_dir), "--method", "tps", "--out", str(run), "--overwrite", *TRAIN]) == 0
+    assert (run / "tps.npz").is_file()
+
+
 def test_train_out_that_cannot_be_created_fails_before_training(setup_dir, tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("")

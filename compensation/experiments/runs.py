@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 import shutil
 from dataclasses import replace
 from importlib.metadata import PackageNotFoundError, version
@@ -123,7 +124,11 @@ RUN_ENTRIES = ("config.json", "loss.csv", "loss.png", "metrics.json", "examples.
 def _check_out_dir(out_dir: Path, overwrite: bool) -> None:
     """Refuse an output that is not a run this command may replace: a file, a finished run without
     ``overwrite``, a folder that is not a run, or a run folder holding anything a run does not
-    write (the user's own files are never deleted)."""
+    write (the user's own files are never deleted), or a symbolic link (replacing the link would
+    leave its target as it was and the run beside it)."""
+    if out_dir.is_symlink():
+        raise ProcamError(f"{out_dir}: is a symbolic link (to {os.readlink(out_dir)}); give the folder "
+                          "itself as the output")
     if out_dir.exists() and not out_dir.is_dir():
         raise ProcamError(f"{out_dir}: exists and is a file; a run directory is a folder")
     if out_dir.exists() and not overwrite:
@@ -246,6 +251,8 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
         if out_dir.exists():
             _check_out_dir(out_dir, overwrite)
             old = out_dir.parent / f".{out_dir.name}.old"
+            if old.is_symlink():  # left by a run that failed here: only ever the run's own folder
+                old.unlink()
             shutil.rmtree(old, ignore_errors=True)
             out_dir.rename(old)
             partial.rename(out_dir)
