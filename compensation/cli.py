@@ -449,11 +449,12 @@ def cmd_study(args: argparse.Namespace) -> None:
     executor = _executor(args)
     done = run_study(study, Path(args.out), executor, progress=not args.quiet and executor.name == "local")
     print(f"procam: study {study.name}: {done['jobs']} runs ({done['trained']} trained, "
-          f"{done['reused']} reused), {done['failed']} failed rows, {done['setups']} setups")
+          f"{done['reused']} reused), {done['failed']} of {done['rows']} result rows failed, "
+          f"{done['setups']} setups")
     print(f"procam: study -> {done['study']}")
     print(f"procam: results -> {done['results']}")
     if done["failed"]:
-        print(f"procam: warning: {done['failed']} of {done['jobs']} rows failed (their errors are in "
+        print(f"procam: warning: {done['failed']} of {done['rows']} result rows failed (their errors are in "
               f"results.csv and failures.csv)", file=sys.stderr)
     from compensation.reports.report import build_report
 

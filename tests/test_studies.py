@@ -245,7 +245,7 @@ def test_resume_fits_nothing_and_a_failure_is_a_row(tiny, monkeypatch, capsys):
                    and p.parent.parent.name.endswith("0p1"))
     shutil.rmtree(failing)
     assert main(args) == 0
-    assert "3 reused), 1 failed rows" in capsys.readouterr().out
+    assert "3 reused), 1 of 4 result rows failed" in capsys.readouterr().out
     rows = csv_rows(out / "results.csv")
     assert [r["status"] for r in rows] == ["ok", "ok", "ok", "failed"]
     assert set(STATUSES) >= {r["status"] for r in rows}
@@ -286,7 +286,9 @@ def test_a_setup_that_cannot_render_fails_its_rows_only(tiny, monkeypatch, capsy
     assert [r["status"] for r in rows] == ["ok", "ok", "failed", "failed"]
     assert all(r["error"] == "render of base__ambient-radiance-0p1 failed: ProcamError: simulated refusal"
                for r in rows[2:])
-    assert "2 runs (0 trained, 2 reused), 2 failed rows, 1 setups" in capsys.readouterr().out
+    out = capsys.readouterr()
+    assert "2 runs (0 trained, 2 reused), 2 of 4 result rows failed, 1 setups" in out.out
+    assert "2 of 4 result rows failed" in out.err
 
 
 def test_render_seeds_give_each_seed_its_dataset(tmp_path):

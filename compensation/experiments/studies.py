@@ -454,8 +454,9 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     Returns
     -------
     dict
-        ``study`` and ``results`` (paths), ``jobs`` (runs), ``trained``, ``reused`` and ``failed``
-        (runs), ``setups`` (rendered or found finished).
+        ``study`` and ``results`` (paths), ``jobs`` (runs), ``trained`` and ``reused`` (runs),
+        ``failed`` and ``rows`` (rows of ``results.csv``: failed, and all), ``setups`` (rendered or
+        found finished).
     """
     out = Path(out)
     executor = executor or LocalExecutor()
@@ -472,7 +473,7 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     trained = sum(1 for d in fitted if d["ok"] and d["trained"])
     return {"study": out / "study.json", "results": results, "jobs": len(fitted), "trained": trained,
             "reused": sum(1 for d in fitted if d["ok"]) - trained,
-            "failed": sum(1 for row in rows if row["status"] == "failed"),
+            "failed": sum(1 for row in rows if row["status"] == "failed"), "rows": len(rows),
             "setups": len(outcome.base)}
 
 
