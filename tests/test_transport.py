@@ -70,12 +70,14 @@ def test_equals_direct_render_at_its_calibration_seed(default_op):
 
 def test_every_linear_effect_stays_exact():
     """The projector lens's distortion, the surface's translucency and the projector's flare act
-    before T (on the emitted light), the camera's glare after it: with all of them on, T p still
-    equals the direct render of p at the calibration spp and seed, and the camera sees the same."""
+    before T (on the emitted light), the camera's glare after it: with all of them on, on a sheet
+    with relief, T p still equals the direct render of p at the calibration spp and seed, and the
+    camera sees the same."""
     keys = {"resolution": [32, 32], "psf_sigma": 0.7, "distortion_k1": -0.05, "distortion_k2": 0.01,
             "lens_offset": 0.6, "translucency_mfp": 10.0, "translucency_fraction": 0.5,
             "flare": 0.05, "flare_sigma": 0.2}
     setup = tiny_setup(projector=keys, camera={"resolution": [32, 32], "glare": 0.02, "glare_sigma": 0.3},
+                       surface={"relief": 3.0, "relief_length": 30.0, "bow": 4.0},  # on a relief sheet
                        render={"fidelity": "transport", "spp": 4})
     tr = TransportRenderer(setup)
     assert tr.operator.info.verify_error <= 1e-4
