@@ -408,3 +408,22 @@ def test_a_folder_where_every_run_failed_still_gets_its_report(tmp_path):
     page = build_report(tmp_path).read_text()
     assert "Failures (2)" in page and "simulated" in page
     assert not list((tmp_path / "charts").glob("study*.png"))
+
+
+def test_each_value_of_a_second_axis_keeps_its_own_chart_files(tmp_path):
+    """Chart names keep the second axis's key and value: with a dotted key, two values give four
+    chart files (study and gain), none overwriting another (``with_suffix`` had cut
+    ``.read_noise=0.01`` off every name)."""
+    from compensation.reports.charts import write_charts
+
+    study, rows = load_folder(make_study(tmp_path))
+    two = [{**r, "camera.read_noise": noise, "point": r["point"] + 10 * k}
+           for k, noise in enumerate((0.0, 0.01)) for r in rows]
+    axes = [*study["axes"], {"key": "camera.read_noise", "values": [0.0, 0.01]}]
+    study2 = {**study, "axes": axes}
+    summary = summarize(two, [AXIS, "camera.read_noise"])
+    written = write_charts(tmp_path / "two", study2, summary, breakpoints(summary, study2), [])
+    names = sorted(p.name for p in written)
+    assert {"study_camera.read_noise=0.png", "study_camera.read_noise=0.01.png"} <= set(names)
+    assert len(set(names)) == len(names) and all(p.is_file() for p in written)
+    assert all(p.with_name(p.name[:-3] + "svg").is_file() for p in written)

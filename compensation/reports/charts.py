@@ -196,13 +196,24 @@ def pyplot():
     return plt
 
 
+def with_extension(stem: Path, ext: str) -> Path:
+    """``stem`` with ``.ext`` appended: a stem holding a key and value such as
+    ``study_surface.corner_angle=75`` keeps them (``Path.with_suffix`` would replace
+    ``.corner_angle=75``).
+
+    >>> with_extension(Path("charts/study_surface.corner_angle=75"), "png").name
+    'study_surface.corner_angle=75.png'
+    """
+    return stem.with_name(f"{stem.name}.{ext}")
+
+
 def _save(fig, stem: Path) -> list[Path]:
     paths = []
     for ext in ("png", "svg"):
         buf = io.BytesIO()
         fig.savefig(buf, format=ext, dpi=DPI)
-        atomic_write(stem.with_suffix(f".{ext}"), buf.getvalue())
-        paths.append(stem.with_suffix(f".{ext}"))
+        atomic_write(with_extension(stem, ext), buf.getvalue())
+        paths.append(with_extension(stem, ext))
     return paths
 
 

@@ -282,8 +282,8 @@ def figure_grid(folder: Path, rows: list[dict], point: int, stem: Path) -> tuple
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
-    atomic_write(stem.with_suffix(".png"), buf.getvalue())
-    return stem.with_suffix(".png"), setup
+    atomic_write(ch.with_extension(stem, "png"), buf.getvalue())
+    return ch.with_extension(stem, "png"), setup
 
 
 # --------------------------------------------------------------------------- HTML
