@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 import shutil
 import tomllib
 from pathlib import Path
@@ -299,3 +300,28 @@ def test_render_seeds_give_each_seed_its_dataset(tmp_path):
         f"base__ambient-radiance-{v}__seed{k}": 5 + k for v in ("0p02", "0p1") for k in (0, 2)}
     assert all(r.setup.endswith(f"__seed{r.seed}") and r.cfg.seed == r.seed for r in plan.runs)
     assert len(plan.runs) == 2 * 2 * 2  # points x methods x seeds
+
+
+def test_provenance_names_the_source_revision(tmp_path):
+    """In a git checkout the source is its commit; a copy of the sources outside any checkout is
+    identified by their digest, which changes with any source file."""
+    import shutil
+    import subprocess
+    import sys
+
+    from compensation.experiments.runs import source_revision
+
+    assert re.fullmatch(r"git [0-9a-f]{40}( \(modified\))?", source_revision())
+    root = Path(__file__).resolve().parents[1]
+    for package in ("sim", "compensation"):
+        shutil.copytree(root / package, tmp_path / package, ignore=shutil.ignore_patterns("__pycache__"))
+    code = "from compensation.experiments.runs import source_revision; print(source_revision())"
+
+    def revision() -> str:
+        return subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env={"PYTHONPATH": str(tmp_path)},
+                              capture_output=True, text=True, check=True).stdout.strip()
+
+    first = revision()
+    assert re.fullmatch(r"sha256 [0-9a-f]{16}", first)
+    (tmp_path / "sim" / "layout.py").write_text((tmp_path / "sim" / "layout.py").read_text() + "\n# edited\n")
+    assert revision() != first

@@ -37,7 +37,8 @@ from compensation.experiments.targets import TargetPolicy
 from compensation.scores.metrics import evaluate
 from compensation.experiments.official import official_complete, official_tag, write_official_outputs
 from compensation.training.config import TrainConfig
-from compensation.experiments.runs import load_run, package_version, scores_are_current, train_run
+from compensation.experiments.runs import (load_run, package_version, scores_are_current,
+                                          source_revision, train_run)
 from sim.dataset import FrameSpec, write_setup
 from sim.errors import ProcamError
 from sim.io import atomic_write, read_json, to_uint8, write_json, write_png
@@ -465,15 +466,16 @@ def write_results(out: Path, axis_keys: Sequence[str], rows: Sequence[dict],
 
 
 def versions() -> dict:
-    """Versions of procam, torch, Mitsuba and Python."""
+    """Versions of procam (its number and :func:`~compensation.experiments.runs.source_revision`),
+    torch, Mitsuba and Python."""
     import torch
 
     try:
         mitsuba = version("mitsuba")
     except PackageNotFoundError:
         mitsuba = "unknown"
-    return {"procam": package_version(), "torch": torch.__version__, "mitsuba": mitsuba,
-            "python": platform.python_version()}
+    return {"procam": package_version(), "procam source": source_revision(), "torch": torch.__version__,
+            "mitsuba": mitsuba, "python": platform.python_version()}
 
 
 def write_study_record(out: Path, record: dict) -> Path:

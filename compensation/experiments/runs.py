@@ -16,10 +16,13 @@ A run directory holds::
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import os
 import shutil
+import subprocess
 from dataclasses import replace
+from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -61,6 +64,34 @@ def package_version() -> str:
         return version("procam")
     except PackageNotFoundError:
         return "unknown"
+
+
+@cache
+def source_revision() -> str:
+    """What identifies the code that runs: ``git <commit>`` (``(modified)`` when tracked files
+    differ from it) in a git checkout, else ``sha256 <digest>`` of the installed ``sim`` and
+    ``compensation`` sources (a version number alone does not tell two builds apart)."""
+    import compensation
+    import sim
+
+    packages = [Path(sim.__file__).resolve().parent, Path(compensation.__file__).resolve().parent]
+    root = packages[0].parent
+    if root == packages[1].parent and (root / ".git").exists():
+        try:
+            git = ["git", "-C", str(root)]
+            commit = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True,
+                                    timeout=30, check=True).stdout.strip()
+            changed = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no"],
+                                     capture_output=True, text=True, timeout=30, check=True).stdout.strip()
+            return f"git {commit}" + (" (modified)" if changed else "")
+        except (OSError, subprocess.SubprocessError):
+            pass  # no git: the sources' digest
+    digest = hashlib.sha256()
+    for package in packages:
+        for path in sorted(package.rglob("*.py")):
+            digest.update(f"{package.name}/{path.relative_to(package)}\n".encode())
+            digest.update(path.read_bytes())
+    return f"sha256 {digest.hexdigest()[:16]}"
 
 
 def _device_name(device: torch.device) -> str:
