@@ -43,7 +43,7 @@ CONTENT = {  # row name -> values: content-dependent processing, off in the defa
 """Rows of effects the default setup leaves off, with their values; also added, all together, to
 the default setup in the table's last row."""
 EFFECTS = {  # row name -> (section, key) pairs taken from the default setup
-    "surface relief": (("surface", "relief"),),
+    "surface relief, registered by one homography": (("surface", "relief"), ("registration", "method")),
     "projector lens PSF": (("projector", "psf_sigma"),),
     "projector defocus": (("projector", "aperture"),),
     "projector lens distortion": (("projector", "distortion_k1"), ("projector", "distortion_k2"),
