@@ -191,6 +191,8 @@ def main() -> None:
     ap.add_argument("--methods", default=",".join(METHODS),
                     help="comma-separated methods to run (the table keeps a column per method of "
                          f"{', '.join(METHODS)}; runs not made are blank); a later call with others resumes")
+    ap.add_argument("--surrogate-only", action="store_true",
+                    help="score the surrogate benchmark only (no closed loop, no oracle: minutes instead of hours at 256²)")
     ap.add_argument("--only", help="comma-separated setup names (effects_base is always included)")
     args = ap.parse_args()
     suite = setups()
@@ -203,10 +205,12 @@ def main() -> None:
     if not set(methods) <= set(METHODS):
         ap.error(f"--methods {args.methods}: expected some of {', '.join(METHODS)}")
     cfg = BenchConfig(profile="quick", methods=methods, sizes=(args.n_train,), tables=("1",),
-                      size=args.size, n_test=args.n_test, overrides=overrides, closed_loop=True)
+                      size=args.size, n_test=args.n_test, overrides=overrides,
+                      closed_loop=not args.surrogate_only)
     run_bench(suite, args.out, cfg)
     how = (f"`python benchmarks/effects.py --out {args.out} --size {args.size} --n-train {args.n_train} "
-           f"--n-test {args.n_test}" + "".join(f" --{k} {v}" for k, v in overrides.items()) + "`: "
+           f"--n-test {args.n_test}" + "".join(f" --{k} {v}" for k, v in overrides.items())
+           + (" --surrogate-only" if args.surrogate_only else "") + "`: "
            f"{args.size}² canonical, {args.n_train} training / {args.n_test} test pairs, quick profile"
            + "".join(f", CompenNet {k} {v}" for k, v in overrides.items()) + ". Base row: absolute dB.")
     write(args.out, table(merge_runs(args.out)), how)
