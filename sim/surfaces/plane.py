@@ -13,6 +13,7 @@ from sim.seeds import SEED_MAX
 from sim.surfaces.base import RectSurface
 from sim.surfaces.relief import HeightField, height_field
 
+
 @dataclass(frozen=True)
 class PlaneOptions:
     """The options only a plane takes (keys of the ``[surface]`` table): its relief. All zero (the
