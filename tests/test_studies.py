@@ -178,7 +178,8 @@ def test_study_folder(tiny):
     assert record["kind"] == "study" and record["name"] == "tiny"
     assert record["axes"] == [{"key": "ambient.radiance", "values": [0.02, 0.1], "label": "ambient radiance",
                                "unit": ""}]
-    assert set(record["versions"]) == {"procam", "torch", "mitsuba", "python"}
+    assert set(record["versions"]) == {"procam", "procam source", "torch", "mitsuba", "python"}
+    assert record["versions"]["procam source"].startswith(("git ", "sha256 "))
     assert record["size"] == [32, 32] and record["n_train"] == [8] and record["seeds"] == [0]
     for name, path in record["setups"].items():
         setup = tomllib.loads((out / path).read_text())
