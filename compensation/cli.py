@@ -445,7 +445,8 @@ def cmd_study(args: argparse.Namespace) -> None:
                            n_test=args.n_test, iters=args.iters, seeds=args.seeds,
                            methods=_names(args.methods, "--methods") if args.methods is not None else None,
                            only=_names(args.only, "--only") if args.only is not None else None,
-                           target_policy=args.target_policy, out_of_reach=args.out_of_reach)
+                           target_policy=args.target_policy, out_of_reach=args.out_of_reach,
+                           closed_loop=False if args.surrogate_only else None)
     executor = _executor(args)
     done = run_study(study, Path(args.out), executor, progress=not args.quiet and executor.name == "local")
     print(f"procam: study {study.name}: {done['jobs']} runs ({done['trained']} trained, "
@@ -487,6 +488,9 @@ def add_study(sub) -> None:
     smoke.add_argument("--only", help="comma-separated point numbers or setup-name patterns "
                                       "(e.g. 0,2 or '*aperture-0p01*'); results.csv then holds "
                                       "their rows only")
+    smoke.add_argument("--surrogate-only", action="store_true",
+                       help="score the held-out pairs only, no closed loop (as closed_loop = false "
+                            "in the study file)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     _target_options(p, None)
     _executor_options(p)

@@ -326,3 +326,32 @@ def test_provenance_names_the_source_revision(tmp_path):
     assert re.fullmatch(r"sha256 [0-9a-f]{16}", first)
     (tmp_path / "sim" / "layout.py").write_text((tmp_path / "sim" / "layout.py").read_text() + "\n# edited\n")
     assert revision() != first
+
+
+@pytest.mark.slow
+def test_surrogate_only_study_scores_no_closed_loop(tmp_path, capsys):
+    (tmp_path / "base.toml").write_text(BASE)
+    (tmp_path / "s.toml").write_text(STUDY.replace("n_test = 4", "n_test = 4\nclosed_loop = false"))
+    study = load_study(tmp_path / "s.toml")
+    assert not study.closed_loop and load_study(ROOT / "scenes" / "studies" / "projector-defocus.toml").closed_loop
+    assert main(["study", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out"), "--quiet",
+                 "--only", "0", "--methods", "nayar"]) == 0
+    out = tmp_path / "out"
+    assert json.loads((out / "study.json").read_text())["closed_loop"] is False
+    [row] = csv_rows(out / "results.csv")
+    assert row["status"] == "ok", row
+    assert float(row["psnr"]) > float(row["unc_psnr"]) + SURROGATE_MARGIN_DB
+    assert row["cl_psnr"] == row["cl_unc_psnr"] == row["oracle_psnr"] == ""  # nothing re-projected
+    assert not (out / row["run"] / "closed_loop").exists()
+    assert "closed_loop" not in json.loads((out / row["run"] / "metrics.json").read_text())
+    assert (out / "report.html").is_file() and "Traceback" not in capsys.readouterr().err
+    # the command line turns the closed loop off for a study file that has it on
+    assert not with_overrides(load_study(ROOT / "scenes" / "studies" / "projector-defocus.toml"),
+                              closed_loop=False).closed_loop
+
+
+def test_closed_loop_key_must_be_a_bool(tmp_path):
+    (tmp_path / "base.toml").write_text(BASE)
+    (tmp_path / "s.toml").write_text(STUDY.replace("n_test = 4", 'n_test = 4\nclosed_loop = "no"'))
+    with pytest.raises(ProcamError, match=r"s\.toml: closed_loop = 'no': expected true or false"):
+        load_study(tmp_path / "s.toml")

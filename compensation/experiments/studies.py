@@ -15,6 +15,7 @@ A study file (TOML; the shipped ones are ``scenes/studies/*.toml``)::
     only = ["light1_*"]             # optional: setup-name patterns or point numbers to run (as --only)
     target_policy = "global"        # optional: what the closed loop scores against: none, global, image
     out_of_reach = 0.01             # optional: share of pixels a global or image target may leave out
+    closed_loop = true              # optional: false scores the held-out pairs only (no re-projection)
 
     [setup]                         # optional: partial setup values applied to every point
     projector = { focus_distance = 0.8 }
@@ -69,7 +70,8 @@ from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
 from sim.setup.schema import SECTIONS
 
 STUDY_KEYS = ("name", "question", "base", "methods", "seeds", "n_train", "n_test", "size", "profile",
-              "render_seeds", "only", "target_policy", "out_of_reach", "setup", "options", "axis")
+              "render_seeds", "only", "target_policy", "out_of_reach", "closed_loop", "setup", "options",
+              "axis")
 """Keys of a study file."""
 AXIS_KEYS = ("key", "values", "label", "unit")
 """Keys of an ``[[axis]]`` table."""
@@ -120,6 +122,10 @@ class Study:
     """Point numbers or setup-name patterns to run (``--only``); empty: all."""
     target: TargetPolicy = TargetPolicy()
     """What the closed loop scores against (``target_policy``, ``out_of_reach``)."""
+    closed_loop: bool = True
+    """Also project every compensation back through its setup and score the capture (false: the
+    surrogate scores on held-out pairs only, for studies where re-rendering every test image of
+    every run costs more than the fits)."""
     overrides: dict = field(default_factory=dict)
     """What the command line changed (recorded in ``study.json``)."""
 
@@ -240,8 +246,9 @@ def load_study(path: Path | str) -> Study:
     fixed = data.get("setup", {})
     if not isinstance(fixed, dict) or "name" in fixed:
         raise _error(path, "setup", fixed, "expected a table of setup sections (without a name)")
-    if not isinstance(data.get("render_seeds", False), bool):
-        raise _error(path, "render_seeds", data["render_seeds"], "expected true or false")
+    for key in ("render_seeds", "closed_loop"):
+        if not isinstance(data.get(key, key == "closed_loop"), bool):
+            raise _error(path, key, data[key], "expected true or false")
     only = data.get("only", [])
     if not isinstance(only, list) or not all(isinstance(o, str) and o.strip() for o in only):
         raise _error(path, "only", only, "expected a list of setup-name patterns or point numbers")
@@ -256,17 +263,18 @@ def load_study(path: Path | str) -> Study:
         n_test=_positive_ints(path, "n_test", data.get("n_test", defaults["n_test"]), False)[0],
         size=_size(path, data.get("size", defaults["size"])), profile=profile,
         render_seeds=data.get("render_seeds", False), setup=dict(fixed), options=dict(options),
-        only=tuple(o.strip() for o in only), target=target)
+        only=tuple(o.strip() for o in only), target=target, closed_loop=data.get("closed_loop", True))
 
 
 def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: tuple[int, ...] | None = None,
                    n_test: int | None = None, iters: int | None = None, seeds: int | None = None,
                    methods: tuple[str, ...] | None = None, only: tuple[str, ...] | None = None,
-                   target_policy: str | None = None, out_of_reach: float | None = None) -> Study:
+                   target_policy: str | None = None, out_of_reach: float | None = None,
+                   closed_loop: bool | None = None) -> Study:
     """The study with the command line's overrides (None: unchanged), recorded in
     :attr:`Study.overrides`. ``n_train`` and ``iters`` replace the values of an axis on that key;
-    ``seeds`` N takes the seeds 0 … N-1; ``target_policy`` and ``out_of_reach`` replace the study
-    file's.
+    ``seeds`` N takes the seeds 0 … N-1; ``target_policy``, ``out_of_reach`` and ``closed_loop``
+    replace the study file's.
 
     Raises
     ------
@@ -274,7 +282,8 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
         If a method is unknown or a value is not positive.
     """
     given = {"size": size, "n_train": n_train, "n_test": n_test, "iters": iters, "seeds": seeds,
-             "methods": methods, "only": only, "target_policy": target_policy, "out_of_reach": out_of_reach}
+             "methods": methods, "only": only, "target_policy": target_policy, "out_of_reach": out_of_reach,
+             "closed_loop": closed_loop}
     given = {k: v for k, v in given.items() if v is not None}
     changes: dict = {}
     axes = list(study.axes)
@@ -301,6 +310,8 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
         changes["methods"] = tuple(methods)
     if only is not None:
         changes["only"] = tuple(only)
+    if closed_loop is not None:
+        changes["closed_loop"] = closed_loop
     if target_policy is not None or out_of_reach is not None:
         changes["target"] = TargetPolicy(target_policy or study.target.name,
                                          study.target.out_of_reach if out_of_reach is None else out_of_reach)
@@ -424,6 +435,7 @@ def study_record(study: Study, plan: Plan, kind: str = "study") -> dict:
             "methods": list(study.methods), "seeds": list(study.seeds), "n_train": sizes,
             "n_test": study.n_test, "size": list(study.size), "profile": study.profile,
             "render_seeds": study.render_seeds, "only": list(study.only), "target": study.target.record(),
+            "closed_loop": study.closed_loop,
             "setup_values": study.setup,
             "options": study.options,
             "overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in study.overrides.items()},
@@ -465,7 +477,7 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     record = study_record(study, plan)
     write_study_record(out, {**record, "executor": executor.name})
     spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size)
-    outcome = execute(plan, out, out / "data", spec, Scoring(study.n_test, target=study.target), executor,
+    outcome = execute(plan, out, out / "data", spec, Scoring(study.n_test, study.closed_loop, target=study.target), executor,
                       list(plan.setups), progress)
     rows = result_rows(plan, outcome, out)
     results = write_results(out, [a.key for a in study.axes], rows)
