@@ -8,7 +8,9 @@ then trains CompenNet from scratch for each crop side, batch size of ``--batches
 count of ``--iters`` and seed of ``--seeds`` (the chart plots the mean over seeds; the paper's
 recipe otherwise, the learning-rate step after 80 % of the
 iterations) and scores the test pairs. Writes ``patches.csv`` and ``patches.png`` into ``--out``
-(default ``benchmarks/results/patches``).
+(default ``benchmarks/results/patches``). The CSV is rewritten after every point and a point it
+already holds (same crop, batch, iterations and seed) is not trained again: rerun the same command
+to go on after an interruption, or with more values to add points.
 
     .venv/bin/python benchmarks/patches.py [--size 64] [--patches 0,32,16] [--iters 75,150,300]
                                            [--batches 16] [--data DIR] [--seeds 0]
@@ -56,7 +58,13 @@ def main() -> None:
         torch.set_num_threads(args.threads)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    table = out / "patches.csv"
     rows = []
+    if table.exists():
+        with open(table, newline="") as f:
+            rows = [{k: float(v) if k in ("train_seconds", "psnr", "ssim", "uncompensated_psnr") else int(v)
+                     for k, v in r.items()} for r in csv.DictReader(f)]
+    done = {(r["patch"], r["batch"], r["iters"], r["seed"]) for r in rows}
     with tempfile.TemporaryDirectory() as tmp:
         if args.data:
             folder = Path(args.data)
@@ -72,6 +80,8 @@ def main() -> None:
               f"uncompensated PSNR {base['psnr']:.2f} dB")
         for patch, batch, iters, seed in itertools.product(
                 *([int(v) for v in a.split(",")] for a in (args.patches, args.batches, args.iters, args.seeds))):
+            if (patch, batch, iters, seed) in done:
+                continue
             options = CompenNetOptions(iters=iters, batch=batch, patch=patch,
                                        lr_step=max(1, round(0.8 * iters)))
             cfg = TrainConfig(method="compennet", options=options, n_train=None, n_test=None,
@@ -83,10 +93,12 @@ def main() -> None:
                          "train_seconds": round(fit.seconds, 2), "psnr": round(scores["psnr"], 3),
                          "ssim": round(scores["ssim"], 4), "uncompensated_psnr": round(base["psnr"], 3)})
             print(rows[-1], flush=True)
-    with open(out / "patches.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+            partial = table.with_suffix(".csv.partial")
+            with open(partial, "w", newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+                writer.writeheader()
+                writer.writerows(rows)
+            partial.replace(table)
     fig, ax = plt.subplots(figsize=(6, 4))
     for patch, batch in dict.fromkeys((r["patch"], r["batch"]) for r in rows):
         mine = [r for r in rows if (r["patch"], r["batch"]) == (patch, batch)]

@@ -323,7 +323,7 @@ class CompenNetOptions(Options):
         "paper": {},
         # CPU-sized: CompenNet trained at 40-54 samples/s at 64² on 2 free cores at batch 8 or
         # 16 when these settings were chosen, ~17 at 128², ~3.7 at 256² (benchmarks/train.py);
-        # later sessions' code and machines: ~146 at 64² (the demo), 50-56 at 128², 13-15 at
+        # the current training step: ~146 at 64² (the demo), 50-56 at 128², 13-15 at
         # 256² (benchmarks/results/train). On the default setup at 64² (250 training / 100 test pairs;
         # benchmarks/results/patches/README.md) iterations count more than the batch: mean test
         # PSNR of seeds 0 and 1 after 500 iterations is 23.45 dB at batch 16 (~170 s) and
