@@ -3,7 +3,7 @@ accuracy.
 
 The data each chart draws comes from small pure functions (:func:`axis_positions`,
 :func:`study_lines`, :func:`baseline_line`, :func:`gain_lines`, :func:`oracle_gain`,
-:func:`speed_points`, :func:`pareto_front`), tested on
+:func:`speed_points`, :func:`pareto_front`, :func:`heatmap_grid`), tested on
 their own; the ``draw_*`` functions only draw it. Files go to ``DIR/charts/`` as PNG and SVG:
 
 ``study.png``                  one axis: surrogate and closed-loop panels (PSNR, SSIM, ΔE where
@@ -18,6 +18,11 @@ their own; the ``draw_*`` functions only draw it. Files go to ``DIR/charts/`` as
 ``gain_<key>=<value>.png``     two axes: the same per value of the second axis
 ``speed.png``                  fit time and inference ms per frame (log x) against PSNR (closed loop
                                where scored), every method and training size, the Pareto front
+``heatmap_<score>_<method>.png``  two axes: PSNR (``psnr``; ``cl_psnr`` where scored) per cell of the
+                               grid of the two factors (x: the first, y: the second), the mean over
+                               the cell's runs printed in it (± the std over several), one chart per
+                               method (``_n_train=<n>`` added where the study has several training
+                               sizes)
 """
 from __future__ import annotations
 
@@ -186,6 +191,37 @@ def pareto_front(points: list[tuple[float, float]]) -> list[int]:
     return sorted(front, key=lambda i: (points[i][0], -points[i][1]))
 
 
+HEATMAP_SCORES = (("psnr", "surrogate PSNR"), ("cl_psnr", "closed-loop PSNR"))
+"""Scores of the heatmaps of a two-axis study (dB): the surrogate always, the closed loop where scored."""
+
+
+def heatmap_grid(summary: list[dict], axes: list[dict], method: str, n_train: int | None,
+                 score: str) -> dict:
+    """The cells of one heatmap of a two-axis study: ``x`` and ``y`` (the first and second axis's
+    values, in the study's order), and ``mean``, ``std`` (of ``score`` over the cell's ok runs:
+    seeds, and setups of a suite) and ``runs`` (their number) as (len(y), len(x)) arrays, NaN (0
+    runs) where ``method`` has no summary row. ``n_train`` None: any training size (an axis sets it).
+
+    >>> axes = [{"key": "a", "values": [1.0, 2.0]}, {"key": "b", "values": ["y", "x"]}]
+    >>> s = [{"a": a, "b": b, "method": "tps", "n_train": 8, "psnr_mean": m, "psnr_std": 0.5, "ok": 2}
+    ...      for a, b, m in ((2.0, "y", 21.0), (1.0, "y", 20.0), (1.0, "x", 22.0))]
+    >>> g = heatmap_grid(s + [{**s[0], "method": "nayar", "psnr_mean": 9.0}], axes, "tps", 8, "psnr")
+    >>> g["x"], g["y"], g["mean"].tolist(), g["runs"].tolist()
+    ([1.0, 2.0], ['y', 'x'], [[20.0, 21.0], [22.0, nan]], [[2, 2], [2, 0]])
+    """
+    first, second = axes[0], axes[1]
+    ordered = [sorted({r[a["key"]] for r in summary}, key=lambda v, a=a: order_key(v, a["values"]))
+               for a in (first, second)]
+    mean, std = (np.full((len(ordered[1]), len(ordered[0])), math.nan) for _ in range(2))
+    runs = np.zeros(mean.shape, int)
+    for r in summary:
+        if r["method"] == method and (n_train is None or r["n_train"] == n_train):
+            cell = ordered[1].index(r[second["key"]]), ordered[0].index(r[first["key"]])
+            mean[cell], std[cell] = r.get(f"{score}_mean", math.nan), r.get(f"{score}_std", math.nan)
+            runs[cell] = r.get("ok", 0)
+    return {"x": ordered[0], "y": ordered[1], "mean": mean, "std": std, "runs": runs}
+
+
 def pyplot():
     """matplotlib's pyplot on the Agg backend (files only, no display)."""
     import matplotlib
@@ -215,6 +251,14 @@ def _save(fig, stem: Path) -> list[Path]:
         atomic_write(with_extension(stem, ext), buf.getvalue())
         paths.append(with_extension(stem, ext))
     return paths
+
+
+def _saved(plt, fig, stem: Path) -> list[Path]:
+    """:func:`_save` the figure, then close it (also when saving fails)."""
+    try:
+        return _save(fig, stem)
+    finally:
+        plt.close(fig)
 
 
 def _colours(methods: list[str]) -> dict[str, str]:
@@ -319,10 +363,7 @@ def _finish(plt, fig, axes, stem: Path, title: str) -> list[Path]:
                fontsize=8, frameon=False)
     fig.suptitle(title, fontsize=11)
     fig.tight_layout(rect=(0, 0.06 + 0.025 * ((len(labels) - 1) // 5), 1, 0.95))
-    try:
-        return _save(fig, stem)
-    finally:
-        plt.close(fig)
+    return _saved(plt, fig, stem)
 
 
 def draw_gain(summary: list[dict], breaks: list[dict], axis: dict, stem: Path, title: str) -> list[Path]:
@@ -426,10 +467,67 @@ def draw_speed(points: list[dict], stem: Path, title: str) -> list[Path]:
             ax.legend(list(handles.values()), list(handles), fontsize=7)
     fig.suptitle(title, fontsize=11)
     fig.tight_layout()
-    try:
-        return _save(fig, stem)
-    finally:
-        plt.close(fig)
+    return _saved(plt, fig, stem)
+
+
+def _tick(value) -> str:
+    """An axis value as a tick label.
+
+    >>> _tick(0.002), _tick(3.0), _tick("RGGB")
+    ('0.002', '3', 'RGGB')
+    """
+    return f"{value:g}" if is_finite(value) else str(value)
+
+
+def draw_heatmap(grid: dict, axes: list[dict], label: str, stem: Path, title: str) -> list[Path]:
+    """Draw one heatmap of :func:`heatmap_grid` to ``stem.png`` and ``stem.svg``: a cell per pair of
+    values, its mean printed in it (± the std where it has several runs), a colour bar of ``label``
+    in dB; a cell without a score grey."""
+    plt = pyplot()
+    mean = np.ma.masked_invalid(grid["mean"])
+    fig, ax = plt.subplots(figsize=(1.3 * len(grid["x"]) + 3.0, 0.8 * len(grid["y"]) + 2.4))
+    cmap = plt.get_cmap("viridis").with_extremes(bad="#d9d9d9")
+    image = ax.imshow(mean, cmap=cmap, origin="lower", aspect="auto")
+    fig.colorbar(image, ax=ax).set_label(f"{label} (dB)")
+    middle = (mean.min() + mean.max()) / 2 if mean.count() else 0.0
+    for (i, j), value in np.ndenumerate(grid["mean"]):
+        text = "no score" if not is_finite(value) else f"{value:.2f}" + (
+            f"\n± {grid['std'][i, j]:.2f}" if grid["runs"][i, j] > 1 and is_finite(grid["std"][i, j]) else "")
+        ax.text(j, i, text, ha="center", va="center", fontsize=8,
+                color="black" if not is_finite(value) or value > middle else "white")
+    for axis, values, set_ticks, set_label in ((axes[0], grid["x"], ax.set_xticks, ax.set_xlabel),
+                                              (axes[1], grid["y"], ax.set_yticks, ax.set_ylabel)):
+        set_ticks(range(len(values)), [_tick(v) for v in values])
+        set_label((axis.get("label") or axis["key"]) + (f" ({axis['unit']})" if axis.get("unit") else ""),
+                  fontsize=9)
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return _saved(plt, fig, stem)
+
+
+def write_heatmaps(charts: Path, name: str, axes: list[dict], summary: list[dict]) -> list[Path]:
+    """Draw the heatmaps of a two-axis study into ``charts`` (see the module's description): per
+    method (and training size, unless an axis sets it) and :data:`HEATMAP_SCORES` entry that any
+    cell scored.
+
+    Returns
+    -------
+    list of Path
+        The PNG files written (each has an SVG beside it).
+    """
+    sized = "n_train" not in (a["key"] for a in axes)
+    sizes = sorted({r["n_train"] for r in summary}) if sized else [None]
+    out = []
+    for method in sorted({r["method"] for r in summary}):
+        for n in sizes:
+            for score, label in HEATMAP_SCORES:
+                grid = heatmap_grid(summary, axes, method, n, score)
+                if not np.isfinite(grid["mean"]).any():
+                    continue
+                size = f"_n_train={n}" if len(sizes) > 1 else ""
+                out.append(draw_heatmap(grid, axes, label, charts / _slug(f"heatmap_{score}_{method}{size}"),
+                                        f"{name}: {method}" + (f", n={n}" if size else "") + f", {label}")[0])
+    return out
 
 
 def _slug(text: str) -> str:
@@ -452,7 +550,8 @@ def _scored(summary: list[dict]) -> bool:
 def write_charts(folder: Path, study: dict, summary: list[dict], breaks: list[dict],
                  fails: list[dict]) -> list[Path]:
     """Draw every chart of a folder into ``folder/charts``: the study and gain charts (one each per
-    value of a second axis; a gain chart where gains are scored) and the speed–accuracy chart.
+    value of a second axis; a gain chart where gains are scored), a two-axis study's heatmaps
+    (:func:`write_heatmaps`) and the speed–accuracy chart.
 
     Returns
     -------
@@ -481,6 +580,8 @@ def write_charts(folder: Path, study: dict, summary: list[dict], breaks: list[di
             if any(is_finite(r.get("gain_db", math.nan)) for r in group):
                 out.append(draw_gain(group, [b for b in breaks if match(b)], first,
                                      charts / _slug("gain" + stem[len("study"):]), heading)[0])
+    if len(axes) == 2 and summary:
+        out += write_heatmaps(charts, name, axes, summary)
     points = speed_points(summary)
     if points:
         out.append(draw_speed(points, charts / "speed", f"{name}: speed against accuracy")[0])
