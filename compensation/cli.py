@@ -532,12 +532,37 @@ def add_report(sub) -> None:
     p.set_defaults(func=cmd_report)
 
 
+def cmd_compare(args: argparse.Namespace) -> None:
+    from compensation.reports.compare import compare_folders, summary_lines
+
+    result = compare_folders(Path(args.a), Path(args.b), Path(args.out) if args.out else None)
+    for line in summary_lines(result):
+        print(f"procam: compare: {line}")
+    print(f"procam: compare -> {result['csv']}")
+    print(f"procam: compare -> {result['md']}")
+
+
+def add_compare(sub) -> None:
+    p = sub.add_parser("compare", help="two study or bench folders side by side (B against A)",
+                       description="Match the runs of A's and B's results.csv (a study: axis values, "
+                                   "setup, method, n_train, seed; a bench: table, setup, method, "
+                                   "n_train, variant, seed) and write compare.csv and compare.md: "
+                                   "each score in A, in B and B - A with its 95 % bootstrap interval "
+                                   "(over the paired test images where both have per_image.csv, else "
+                                   "over setups and seeds), per point and method and per run; runs "
+                                   "found in one folder only are listed.")
+    p.add_argument("a", help="a folder written by `procam study` or `procam bench`")
+    p.add_argument("b", help="another folder of the same study or bench")
+    p.add_argument("--out", help="output folder (default: A/compare-<name of B>)")
+    p.set_defaults(func=cmd_compare)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="procam", description="Physically simulated projector–camera "
                                      "testbed for projector photometric compensation.")
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (add_render, add_bench_sim, add_train, add_compensate, add_bench, add_study, add_demo,
-                add_report):
+                add_report, add_compare):
         add(sub)
     return parser
 
