@@ -632,7 +632,7 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
         split, i = job
         return _finish_capture(sim, *rendered, seeds.STREAMS[split], i, *files(split, i))
 
-    with tqdm(total=len(todo), desc=f"render {setup.name}", unit="capture", disable=not progress) as bar:
+    with tqdm(total=len(todo), desc=f"{setup.name} · render", unit="capture", disable=not progress) as bar:
         for seconds in pipelined(todo, render, finish, workers):
             for phase, sec in seconds.items():
                 finish_seconds[phase] += sec

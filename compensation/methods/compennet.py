@@ -42,7 +42,7 @@ from compensation.methods.base import (CHECKPOINT, FitResult, Method, load_weigh
 from compensation.scores.losses import LOSSES, get_loss
 from compensation.training.config import Options, TrainConfig
 from compensation.training.conv_grad import faster_backward
-from compensation.training.loop import CropSampler, train_loop
+from compensation.training.loop import CropSampler, fit_label, train_loop
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
@@ -492,7 +492,7 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     try:
         with faster_backward(model) if device.type == "cpu" else nullcontext():
             result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
-                                ("loss", "lr"), f"train {cfg.method} on {data.name}", progress,
+                                ("loss", "lr"), fit_label(data.name, cfg.method, cfg.seed), progress,
                                 stateful, checkpoint, sampler=opt.sampler)
     finally:
         model.to(memory_format=torch.contiguous_format)

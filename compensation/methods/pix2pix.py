@@ -43,7 +43,7 @@ from torch import Tensor, nn
 from compensation.methods.base import (CHECKPOINT, FitResult, Method, load_state, load_weights,
                                        resolve_device, save_state, weights_file)
 from compensation.training.config import Options, TrainConfig
-from compensation.training.loop import train_loop
+from compensation.training.loop import fit_label, train_loop
 from sim.errors import ProcamError
 
 if TYPE_CHECKING:
@@ -417,7 +417,7 @@ class Pix2PixMethod(Method):
         model.train()
         stateful = {"model": model, "optimizer_g": opt_g, "optimizer_d": opt_d}
         result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
-                            ("l1", "G GAN", "D"), f"train {self.name} on {data.name}", progress,
+                            ("l1", "G GAN", "D"), fit_label(data.name, self.name, cfg.seed), progress,
                             stateful, checkpoint)
         disc.requires_grad_(True)
         rows = result.values

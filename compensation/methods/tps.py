@@ -95,6 +95,7 @@ from tqdm import tqdm
 from compensation.data import PairSet
 from compensation.methods.base import FitResult, Method, load_arrays, plain_colour_pairs, resolve_device
 from compensation.training.config import Options, TrainConfig
+from compensation.training.loop import fit_label
 from sim.cores import usable_cores
 from sim.errors import ProcamError
 
@@ -421,7 +422,8 @@ class TPSMethod(Method):
         start = time.perf_counter()
         centres = pixel_samples(pairs.captures)
         coeffs, residual, degenerate = fit_splines(centres, pixel_samples(pairs.frames), self.smoothing,
-                                                   cfg.options.workers, progress, f"fit {self.name}",
+                                                   cfg.options.workers, progress,
+                                                   fit_label(data.name, self.name, cfg.seed),
                                                    cfg.options.scale_invariant)
         seconds = time.perf_counter() - start
         self._set_state(tuple(pairs.captures.shape[-2:]), torch.from_numpy(centres),

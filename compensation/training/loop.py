@@ -243,6 +243,16 @@ def _load_checkpoint(path: Path, values: torch.Tensor, sampler: BatchSampler, st
     return it, float(state["seconds"])
 
 
+def fit_label(setup: str, method: str, seed: int) -> str:
+    """The label of a fit's progress bar and of its messages: the setup, method and seed it works
+    for.
+
+    >>> fit_label("light1_pos1_squares", "compennet", 0)
+    'light1_pos1_squares · compennet · seed 0 · fit'
+    """
+    return f"{setup} · {method} · seed {seed} · fit"
+
+
 def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int, iters: int,
                seed: int, device: torch.device, names: tuple[str, ...], desc: str,
                progress: bool = True, stateful: dict | None = None, checkpoint: Path | None = None,
@@ -273,7 +283,7 @@ def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int,
     names : tuple of str
         Names of the step's values, for the progress bar and error messages.
     desc : str
-        Progress-bar label and the subject of a divergence message.
+        Progress-bar label and the subject of a divergence message (:func:`fit_label`).
     progress : bool
         Show the progress bar.
     stateful : dict, optional
