@@ -5,15 +5,17 @@ A job is a module-level function and one picklable argument (a frozen dataclass 
 configurations); it reads and writes only the files under the study folder and the dataset root,
 so every executor gives the same files and the same numbers, and a job already finished is reused
 whoever ran it. :func:`attempt` runs one job and turns its failure into a record, so one failing
-job never stops the others.
+job never stops the others; :func:`timed` also measures it, for the executors' ``on_done``
+callback (each job's record and duration as it finishes).
 """
 from __future__ import annotations
 
 import os
 import socket
+import time
 import traceback
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from multiprocessing import get_context
 
@@ -66,6 +68,24 @@ def attempt(fn: Callable, job) -> dict:
                 "traceback": traceback.format_exc(limit=4)}
 
 
+def timed(fn: Callable, job) -> tuple[dict, float]:
+    """The :func:`attempt` record of ``fn(job)`` and its wall time (seconds).
+
+    >>> record, seconds = timed(dict.fromkeys, "ab")
+    >>> record, seconds >= 0
+    ({'ok': True, 'a': None, 'b': None}, True)
+    """
+    t0 = time.perf_counter()
+    record = attempt(fn, job)
+    return record, time.perf_counter() - t0
+
+
+DoneCallback = Callable[[int, dict, float], None]
+"""``on_done(index, record, seconds)``: called by an executor's ``run`` in this process as each
+task finishes, with the task's index in the list given, its :func:`attempt` record and its wall
+time."""
+
+
 class LocalExecutor:
     """Jobs in this process, in order (``workers`` 1), or in a pool of ``workers`` processes.
 
@@ -82,13 +102,26 @@ class LocalExecutor:
             raise ProcamError(f"--processes {workers!r}: expected a positive integer")
         self.workers = workers
 
-    def run(self, tasks: Sequence[Task]) -> list[dict]:
-        """The :func:`attempt` record of every task, in the order given."""
+    def run(self, tasks: Sequence[Task], on_done: DoneCallback | None = None) -> list[dict]:
+        """The :func:`attempt` record of every task, in the order given; ``on_done`` is called
+        as each finishes (:data:`DoneCallback`)."""
+        records: list[dict] = [{}] * len(tasks)
+
+        def finished(i: int, record: dict, seconds: float) -> None:
+            records[i] = record
+            if on_done is not None:
+                on_done(i, record, seconds)
+
         if self.workers == 1 or len(tasks) < 2:
-            return [attempt(t.fn, t.job) for t in tasks]
+            for i, t in enumerate(tasks):
+                finished(i, *timed(t.fn, t.job))
+            return records
         # spawn: a fresh interpreter per worker (no forked torch or Mitsuba thread state)
         with ProcessPoolExecutor(min(self.workers, len(tasks)), mp_context=get_context("spawn")) as pool:
-            return list(pool.map(attempt, [t.fn for t in tasks], [t.job for t in tasks]))
+            futures = {pool.submit(timed, t.fn, t.job): i for i, t in enumerate(tasks)}
+            for future in as_completed(futures):
+                finished(futures[future], *future.result())
+        return records
 
     def gpus(self) -> float:
         """GPUs visible to the jobs."""
@@ -158,19 +191,27 @@ class RayExecutor:
             except (ConnectionError, RuntimeError, ValueError) as exc:
                 raise ProcamError(f"--address {address}: cannot connect to a Ray cluster ({exc})") from None
 
-    def run(self, tasks: Sequence[Task]) -> list[dict]:
-        """The :func:`attempt` record of every task, in the order given."""
-        remote = self.ray.remote(attempt)
+    def run(self, tasks: Sequence[Task], on_done: DoneCallback | None = None) -> list[dict]:
+        """The :func:`attempt` record of every task, in the order given; ``on_done`` is called
+        for each in that order, as its result arrives (:data:`DoneCallback`)."""
+        remote = self.ray.remote(timed)
         refs = [remote.options(num_cpus=t.num_cpus, num_gpus=t.num_gpus).remote(t.fn, t.job)
                 for t in tasks]
-        return [self._result(ref) for ref in refs]
+        records = []
+        for i, ref in enumerate(refs):
+            record, seconds = self._result(ref)
+            records.append(record)
+            if on_done is not None:
+                on_done(i, record, seconds)
+        return records
 
-    def _result(self, ref) -> dict:
-        """A task's record; a task lost by Ray (its worker or node died) is a failed job."""
+    def _result(self, ref) -> tuple[dict, float]:
+        """A task's record and wall time; a task lost by Ray (its worker or node died) is a failed
+        job, of unknown duration (0)."""
         try:
             return self.ray.get(ref)
         except self.ray.exceptions.RayError as exc:
-            return {"ok": False, "error": f"{type(exc).__name__}: {exc}".strip(), "traceback": ""}
+            return {"ok": False, "error": f"{type(exc).__name__}: {exc}".strip(), "traceback": ""}, 0.0
 
     def gpus(self) -> float:
         """GPUs of the cluster."""
