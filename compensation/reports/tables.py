@@ -1,10 +1,12 @@
-"""The benchmark's tables: Tables 1-3 and per-setup rows as Markdown and CSV, and ``bench.json``.
+"""The benchmark's tables: Tables 1-3 and per-setup rows as Markdown, CSV and LaTeX, and
+``bench.json``.
 
 Each table is written from the rows of finished runs (one dict per run, its ``metrics.json`` plus
 the job that made it), the uncompensated scores per setup and, with the closed loop, the
 iterative-refinement oracle. Tables 1-3 put the CompenNet paper's PSNR, RMSE and SSIM in a
 ``paper`` column beside each of procam's, on the same rows, so the gap reads at once; the CSV keeps
-them as separate columns (``paper PSNR`` …, ``-`` where the paper has no such row).
+them as separate columns (``paper PSNR`` …, ``-`` where the paper has no such row). The LaTeX of
+each table (:func:`latex_table`) is a ``booktabs`` table float.
 """
 from __future__ import annotations
 
@@ -77,17 +79,108 @@ def _with_paper(ours: list, paper: tuple[float, float, float] | None) -> list:
     return cells
 
 
+def _cell(value) -> str:
+    """A table cell as the Markdown, CSV and LaTeX show it: floats to 4 decimals.
+
+    >>> _cell(21.05423), _cell(125), _cell("-")
+    ('21.0542', '125', '-')
+    """
+    return f"{value:.4f}" if isinstance(value, float) else str(value)
+
+
+LATEX_TEXT = {"&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{", "}": r"\}",
+              "~": r"\textasciitilde{}", "^": r"\textasciicircum{}", "\\": r"\textbackslash{}",
+              "<": r"\textless{}", ">": r"\textgreater{}", "…": r"\ldots{}"}
+"""Characters LaTeX reads as commands (or prints as others), escaped in text mode."""
+LATEX_MATH = {"λ": r"\lambda", "α": r"\alpha", "π": r"\pi", "Δ": r"\Delta", "ℓ": r"\ell", "μ": r"\mu",
+              "²": "^{2}", "³": "^{3}", "†": r"^{\dagger}", "°": r"^{\circ}", "·": r"\cdot", "−": "-",
+              "×": r"\times", "±": r"\pm", "≤": r"\leq", "≥": r"\geq", "→": r"\rightarrow"}
+"""Unicode characters of the tables' labels and notes, by their math-mode equivalents."""
+COMBINING_TILDE = "\u0303"
+"""The combining tilde of x̃, set as ``\\tilde`` over the character before it."""
+
+
+def latex_text(text: str) -> str:
+    r"""``text`` for LaTeX's text mode: :data:`LATEX_TEXT` escaped, :data:`LATEX_MATH` (and a
+    character under :data:`COMBINING_TILDE`) in math mode, adjacent ones in one ``$…$``; any
+    other character as it is.
+
+    >>> print(latex_text("tps (λ = 0.0347·α²), 50 % of x̃_1"))
+    tps ($\lambda$ = 0.0347$\cdot\alpha^{2}$), 50 \% of $\tilde{x}$\_1
+    """
+    parts: list[tuple[str, bool]] = []  # (LaTeX, in math mode)
+    for i, char in enumerate(text):
+        if char == COMBINING_TILDE:
+            continue
+        if text[i + 1:i + 2] == COMBINING_TILDE:
+            parts.append((rf"\tilde{{{LATEX_MATH.get(char, char)}}}", True))
+        elif char in LATEX_MATH:
+            parts.append((LATEX_MATH[char], True))
+        else:
+            parts.append((LATEX_TEXT.get(char, char), False))
+    out, math_run = [], []
+    for latex, math in parts + [("", False)]:
+        if math:
+            math_run.append(latex)
+            continue
+        if math_run:
+            out.append("$" + "".join(math_run) + "$")
+            math_run.clear()
+        out.append(latex)
+    return "".join(out)
+
+
+def latex_table(title: str, header: list[str], rows: list[list], note: str = "") -> str:
+    r"""A ``booktabs`` table float: ``title`` as its caption, the ``header`` and ``rows`` in a
+    tabular (a column right-aligned where its cells are numbers or ``-``, else left-aligned), the
+    ``note`` as a footnote-size paragraph under it; cells formatted as in the Markdown, every
+    text through :func:`latex_text`.
+
+    >>> print(latex_table("T_1", ["method", "PSNR"], [["tps (λ = 0.01)", 20.5], ["uncompensated", "-"]],
+    ...                   "50 %"), end="")
+    % needs \usepackage{booktabs}
+    \begin{table}[htbp]
+    \centering
+    \caption{T\_1}
+    \begin{tabular}{lr}
+    \toprule
+    method & PSNR \\
+    \midrule
+    tps ($\lambda$ = 0.01) & 20.5000 \\
+    uncompensated & - \\
+    \bottomrule
+    \end{tabular}
+    \par\smallskip
+    {\footnotesize 50 \%\par}
+    \end{table}
+    """
+    def numeric(column: int) -> bool:
+        cells = [row[column] for row in rows]
+        return any(isinstance(v, (int, float)) for v in cells) and all(
+            isinstance(v, (int, float)) or v == "-" for v in cells)
+
+    line = lambda cells: " & ".join(latex_text(_cell(v)) for v in cells) + r" \\"  # noqa: E731
+    align = "".join("r" if numeric(i) else "l" for i in range(len(header)))
+    tex = [r"% needs \usepackage{booktabs}", r"\begin{table}[htbp]", r"\centering",
+           rf"\caption{{{latex_text(title)}}}", rf"\begin{{tabular}}{{{align}}}", r"\toprule", line(header),
+           r"\midrule", *(line(row) for row in rows), r"\bottomrule", r"\end{tabular}"]
+    if note:
+        tex += [r"\par\smallskip", rf"{{\footnotesize {latex_text(note)}\par}}"]
+    return "\n".join([*tex, r"\end{table}"]) + "\n"
+
+
 def _table(path: Path, title: str, header: list[str], body: list[list], note: str = "") -> None:
-    fmt = lambda v: f"{v:.4f}" if isinstance(v, float) else str(v)  # noqa: E731
+    """Write ``path`` with the suffixes ``.md``, ``.csv`` and ``.tex`` (:func:`latex_table`)."""
     md = [f"# {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    md += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in body]
+    md += ["| " + " | ".join(_cell(v) for v in row) + " |" for row in body]
     md += ["", note] if note else []
     write_text(path.with_suffix(".md"), "\n".join(md) + "\n")
     text = io.StringIO(newline="")
     w = csv.writer(text)
     w.writerow(header)
-    w.writerows([[fmt(v) for v in row] for row in body])
+    w.writerows([[_cell(v) for v in row] for row in body])
     atomic_write(path.with_suffix(".csv"), text.getvalue())
+    write_text(path.with_suffix(".tex"), latex_table(title, header, body, note))
 
 
 def _correlation_note(rows: list[dict]) -> str:
@@ -127,7 +220,8 @@ def _named(cfg: BenchConfig, method: str) -> str:
 
 
 def write_tables(out: Path, cfg: BenchConfig, result: BenchResult) -> dict:
-    """Write ``table{1,2,3}.{md,csv}``, ``per_setup.{md,csv}``, ``failures.json`` and ``bench.json``.
+    """Write ``table{1,2,3}`` and ``per_setup`` (each ``.md``, ``.csv`` and ``.tex``),
+    ``failures.json`` and ``bench.json``.
 
     Tables 1-3 carry the paper's figures in ``paper`` columns beside procam's (:data:`PAPER_TABLE1`
     and the others). With ``cfg.closed_loop`` the closed-loop columns average the setups that were
