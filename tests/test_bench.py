@@ -11,6 +11,7 @@ import imageio.v3 as iio
 import pytest
 
 from helpers import csv_rows, tiny_toml
+from test_latex import latex_problems
 from compensation.cli import main
 from compensation.experiments.plans import slug
 from compensation.methods import METHODS
@@ -168,6 +169,30 @@ def test_report_of_the_closed_loop_bench(bench, capsys):
         assert 0 < float(tps["gain_lo"]) < float(tps["gain_db"]) < float(tps["gain_hi"])  # several samples
     images = [r for r in csv_rows(out / "per_image.csv") if r["table"] == "1" and r["method"] == "tps"]
     assert images and all(float(r["cl_psnr"]) > 0 and float(r["oracle_psnr"]) > 0 for r in images)
+
+
+def test_paired_table_and_latex(bench):
+    """Every table also in LaTeX; Table 1's methods compared two by two at each size on the same
+    test images (2 setups x 2), surrogate and closed loop."""
+    out = bench / "bench"
+    for name in ("table1", "table1_paired", "table2", "table3", "per_setup"):
+        header = (out / f"{name}.csv").read_text().splitlines()[0].split(",")
+        assert latex_problems((out / f"{name}.tex").read_text(), len(header)) == [], name
+    names = [ROW_NAMES.get(m, m) for m in METHOD_LIST.split(",")]
+    paired = {(r["A"], r["B"], r["n_train"], r["score"]): r for r in csv_rows(out / "table1_paired.csv")}
+    assert list(paired) == [(a, b, n, score) for n in ("4", "8") for i, a in enumerate(names)
+                            for b in names[i + 1:] for score in ("surrogate", "closed loop")]
+    assert all((r["setups"], r["images"]) == ("2", "4") and r["p"] in ("0.5000", "1.0000")
+               for r in paired.values())
+    # compennet after 3 iterations against tps: behind on every image, in both scores
+    images = {(r["setup"], r["method"], r["n_train"], r["image"]): r for r in csv_rows(out / "per_image.csv")
+              if r["table"] == "1"}
+    for score, column in (("surrogate", "psnr"), ("closed loop", "cl_psnr")):
+        row = paired[("compennet", ROW_NAMES["tps"], "8", score)]
+        diffs = [float(images[(s, "compennet", "8", i)][column]) - float(images[(s, "tps", "8", i)][column])
+                 for s in ("s1", "s2") for i in ("1", "2")]
+        assert float(row["mean diff dB"]) == pytest.approx(sum(diffs) / 4, abs=1e-3)
+        assert float(row["CI high"]) < 0 and row["share A better"] == "0.0000" and row["p"] == "0.5000"
 
 
 def test_resume_trains_nothing_and_failures_are_isolated(bench, monkeypatch):

@@ -22,6 +22,7 @@ from helpers import csv_rows
 from sim.errors import ProcamError
 from sim.io import write_png
 from synthetic import make_dataset
+from test_latex import latex_problems
 
 AXIS = "projector.aperture"
 VALUES = [0.0, 1.0, 2.0]
@@ -323,6 +324,23 @@ def test_real_bench_folder(tmp_path, capsys):
     assert set(summary) == {"tps", "nayar"}
     assert float(summary["tps"]["psnr_mean"]) > float(summary["tps"]["unc_psnr_mean"]) + 5
     assert csv_rows(out / "breakpoints.csv") == []
+    # every table also in LaTeX beside its Markdown and CSV, valid as far as can be seen without LaTeX
+    for name in ("table1", "table1_paired", "per_setup"):
+        assert (out / f"{name}.md").is_file()
+        header = (out / f"{name}.csv").read_text().splitlines()[0].split(",")
+        assert latex_problems((out / f"{name}.tex").read_text(), len(header)) == []
+    assert r"tps ($\lambda$ = 0.01)" in (out / "table1.tex").read_text()
+    # tps against nayar on the same 4 test images of the one setup: their per-image PSNR differences
+    images = {(r["method"], r["image"]): float(r["psnr"]) for r in csv_rows(out / "per_image.csv")}
+    diffs = [images[("tps", str(i))] - images[("nayar", str(i))] for i in range(1, 5)]
+    [paired] = csv_rows(out / "table1_paired.csv")
+    assert [paired[k] for k in ("A", "B", "n_train", "score", "setups", "images", "p")] == [
+        "tps (λ = 0.01)", "nayar", "8", "surrogate", "1", "4", "1.0000"]  # one setup: no sign to flip
+    assert float(paired["mean diff dB"]) == pytest.approx(np.mean(diffs), abs=2e-4)
+    assert float(paired["CI low"]) <= float(paired["mean diff dB"]) <= float(paired["CI high"])
+    assert float(paired["share A better"]) == np.mean(np.array(diffs) > 0)
+    assert "sign-flip permutation test" in (out / "table1_paired.md").read_text()
+    assert "Table 1, paired: method A against method B" in page
 
 
 def test_training_size_factor():

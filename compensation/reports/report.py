@@ -3,11 +3,12 @@
 The page holds, in order: the question and each method's break point, a figure grid in the style of
 the CompenNet paper's Fig. 4 (rows: test images; columns: surface s̃, uncompensated capture, each
 method's closed-loop capture, desired image; two zoomed patches under each), every chart of
-:mod:`~compensation.reports.charts`, the tables (a bench's Tables 1-3 with the paper's columns,
-the summary), the failures, and the provenance (setup files, seeds, versions, timings). Images are
-inlined as base64 ``data:`` URIs and the style sheet is inline: the page needs no network and no
-other file. It is written atomically to ``DIR/report.html``, beside the files it is made from:
-``summary.csv``, ``breakpoints.csv``, ``failures.csv`` and ``charts/`` (written again each time).
+:mod:`~compensation.reports.charts`, the tables (a bench's Tables 1-3 with the paper's columns and
+Table 1's paired comparisons of the methods, the summary), the failures, and the provenance (setup
+files, seeds, versions, timings). Images are inlined as base64 ``data:`` URIs and the style sheet
+is inline: the page needs no network and no other file. It is written atomically to
+``DIR/report.html``, beside the files it is made from: ``summary.csv``, ``breakpoints.csv``,
+``failures.csv`` and ``charts/`` (written again each time).
 
 A folder is read from ``study.json`` and ``results.csv`` (with ``per_image.csv``, the per-image
 scores of the break points' intervals, where it has one); a bench folder written before those
@@ -497,7 +498,7 @@ def build_report(folder: Path) -> Path:
         body.append(f'<figure><img alt="{html.escape(path.stem)}" src="{_png_uri(path)}">'
                     f"<figcaption>{html.escape(path.name)} (SVG beside it in charts/)</figcaption></figure>")
     body.append("<h2>Tables</h2>")
-    for table in ("table1", "table2", "table3"):
+    for table in ("table1", "table1_paired", "table2", "table3"):
         if (folder / f"{table}.md").is_file():
             body.append(markdown_html((folder / f"{table}.md").read_text()))
     cols = [*dict.fromkeys(["point", *axes, "method", "n_train"]), "ok/runs", "PSNR", "SSIM", "CL PSNR", "CL SSIM",

@@ -1,12 +1,14 @@
-"""The benchmark's tables: Tables 1-3 and per-setup rows as Markdown, CSV and LaTeX, and
-``bench.json``.
+"""The benchmark's tables: Tables 1-3, Table 1's paired comparisons and per-setup rows as Markdown,
+CSV and LaTeX, and ``bench.json``.
 
 Each table is written from the rows of finished runs (one dict per run, its ``metrics.json`` plus
 the job that made it), the uncompensated scores per setup and, with the closed loop, the
 iterative-refinement oracle. Tables 1-3 put the CompenNet paper's PSNR, RMSE and SSIM in a
 ``paper`` column beside each of procam's, on the same rows, so the gap reads at once; the CSV keeps
-them as separate columns (``paper PSNR`` …, ``-`` where the paper has no such row). The LaTeX of
-each table (:func:`latex_table`) is a ``booktabs`` table float.
+them as separate columns (``paper PSNR`` …, ``-`` where the paper has no such row). The paired
+table compares every two methods of Table 1 at one training size, test image by test image
+(:mod:`~compensation.reports.paired`). The LaTeX of each table (:func:`latex_table`) is a
+``booktabs`` table float.
 """
 from __future__ import annotations
 
@@ -19,6 +21,9 @@ import numpy as np
 
 from compensation.experiments.bench import LOSSES, TABLE2, BenchConfig, BenchResult
 from compensation.methods import METHODS, applicable, make_config
+from compensation.reports.paired import (EXACT_SETUPS, FLIP_SAMPLES, paired_comparison,
+                                         paired_differences)
+from compensation.reports.summary import BOOTSTRAP_SAMPLES, BOOTSTRAP_SEED, CONFIDENCE
 from sim.io import atomic_write, write_json, write_text
 
 METRICS = ("psnr", "rmse", "ssim", "deltaE")
@@ -219,14 +224,62 @@ def _named(cfg: BenchConfig, method: str) -> str:
     return f"{method} ({label})" if label else method
 
 
+PAIRED_HEADER = ["A", "B", "n_train", "score", "mean diff dB", "CI low", "CI high", "share A better",
+                 "setups", "images", "p"]
+"""Columns of ``table1_paired``: one row per two methods of Table 1, training size and score."""
+PAIRED_NOTE = ("Each row compares two methods A and B of Table 1 trained on the same number of "
+               "pairs, test image by test image (same setup, same image), pooled across setups. mean "
+               "diff dB: the mean of the per-image PSNR differences A − B (surrogate: π†(x̃) vs x; "
+               "closed loop: the capture vs the target, where scored); CI low, CI high: its "
+               f"{100 * CONFIDENCE:g} % percentile interval from a hierarchical bootstrap "
+               f"({BOOTSTRAP_SAMPLES} resamples of the setups, then of the test images within each drawn "
+               f"setup; seed {BOOTSTRAP_SEED}); share A better: the share of the images where A scores "
+               "higher; p: the two-sided p-value of a paired sign-flip permutation test of the per-setup "
+               f"mean differences (every sign pattern up to {EXACT_SETUPS} setups, else {FLIP_SAMPLES} "
+               f"random ones; seed {BOOTSTRAP_SEED}): the chance of a mean at least this far from 0 were "
+               "A and B interchangeable. With 2 setups p is at least 0.5, with 5 at least 0.0625: p < 0.05 "
+               "needs 6 setups or more.")
+"""The paired table's note: what each column and the test are."""
+
+
+def _per_image(row: dict, score: str) -> list[float]:
+    """A run's per-test-image PSNR of ``score`` (``surrogate`` or ``closed loop``), empty where its
+    ``metrics.json`` kept none.
+
+    >>> _per_image({"psnr_per_image": [20.0], "closed_loop": {"psnr_per_image": [18.0]}}, "closed loop")
+    [18.0]
+    """
+    return (row if score == "surrogate" else row.get("closed_loop", {})).get("psnr_per_image") or []
+
+
+def _paired_body(cfg: BenchConfig, t1: list[dict]) -> list[list]:
+    """The rows of ``table1_paired`` (:data:`PAIRED_HEADER`) from Table 1's runs: per training size,
+    every two methods in Table 1's order and each score both hold per image
+    (:func:`~compensation.reports.paired.paired_comparison`)."""
+    body = []
+    for n in cfg.sizes:
+        for i, a in enumerate(cfg.methods):
+            for b in cfg.methods[i + 1:]:
+                for score in ("surrogate", "closed loop"):
+                    a_scores, b_scores = ({r["setup"]: _per_image(r, score) for r in t1
+                                           if r["method"] == m and r["n_train"] == n} for m in (a, b))
+                    groups = paired_differences(a_scores, b_scores)
+                    if groups:
+                        c = paired_comparison(groups)
+                        body.append([_named(cfg, a), _named(cfg, b), n, score, c["mean"], c["lo"], c["hi"],
+                                     c["share"], c["setups"], c["images"], c["p"]])
+    return body
+
+
 def write_tables(out: Path, cfg: BenchConfig, result: BenchResult) -> dict:
-    """Write ``table{1,2,3}`` and ``per_setup`` (each ``.md``, ``.csv`` and ``.tex``),
-    ``failures.json`` and ``bench.json``.
+    """Write ``table{1,2,3}``, ``table1_paired`` and ``per_setup`` (each ``.md``, ``.csv`` and
+    ``.tex``), ``failures.json`` and ``bench.json``.
 
     Tables 1-3 carry the paper's figures in ``paper`` columns beside procam's (:data:`PAPER_TABLE1`
     and the others). With ``cfg.closed_loop`` the closed-loop columns average the setups that were
     simulated; the others (no ``setup.toml``, no closed-loop scores) are named in Table 1's note, and
-    without any simulated setup the columns are left out.
+    without any simulated setup the columns are left out. ``table1_paired`` compares every two
+    methods of Table 1 at each training size on the paired test images (:data:`PAIRED_NOTE`).
 
     Returns
     -------
@@ -275,6 +328,9 @@ def write_tables(out: Path, cfg: BenchConfig, result: BenchResult) -> dict:
                f"({cfg.profile} profile, {image_size}, {cfg.tests} test pairs each)", head, body,
                "\n\n".join(notes))
         files["table1"] = out / "table1.md"
+        _table(out / "table1_paired", "Table 1, paired: method A against method B on the same test images",
+               PAIRED_HEADER, _paired_body(cfg, t1), PAIRED_NOTE)
+        files["table1_paired"] = out / "table1_paired.md"
     if "2" in cfg.tables:
         t2 = [r for r in rows if r["table"] == "2"]
         body = [line("CompenNet, He init" if init is None else "CompenNet, pre-trained on white", TABLE2["n_train"],
