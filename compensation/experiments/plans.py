@@ -5,21 +5,28 @@ has one, point 0), the setups to render and the runs — one method fitted with 
 setup of one point, in the run folder ``runs/<setup>/<name>`` named by :func:`run_name`. Both
 commands then go through :func:`execute` (render, fit, score, baselines, by the executor's
 jobs of :mod:`compensation.experiments.jobs`) and :func:`result_rows` (one ``results.csv`` row per
-run), so they name folders, reuse runs and record failures the same way.
+run), so they name folders, reuse runs and record failures the same way. With progress on,
+:class:`JobCount` prints one line each time a job finishes: the jobs of each kind done, reused and
+failed, and the time left (:func:`eta`).
 """
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+import sys
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tqdm import tqdm
+
+from compensation.experiments.executors import Task
 from compensation.experiments.jobs import (BaselineJob, FitJob, RenderJob, baselines, fit, render,
                                           result_row, tasks)
 from compensation.experiments.targets import TargetPolicy
 from compensation.training.config import TrainConfig
 from sim.dataset import FrameSpec
 from sim.errors import ProcamError
+from sim.layout import META_FILE
 from sim.setup import Setup
 
 
@@ -122,6 +129,125 @@ class Outcome:
     """Setup name → baseline record (setups whose data exists)."""
 
 
+KINDS = {RenderJob: "render", FitJob: "fit", BaselineJob: "score"}
+"""The kind of each job of a plan, as the progress line counts them."""
+
+
+def eta(done: Mapping[str, Sequence[float]], remaining: Mapping[str, int], workers: int = 1) -> float | None:
+    """Seconds left: each kind's remaining jobs times the mean duration of the jobs of that kind
+    that did work so far (``done``: durations by kind, reused jobs left out), over ``workers`` jobs
+    running side by side; None while a kind with jobs left has none done.
+
+    >>> eta({"render": [10.0, 20.0], "fit": [60.0]}, {"render": 1, "fit": 2, "score": 0})
+    135.0
+    >>> eta({"render": [10.0, 20.0], "fit": [60.0]}, {"render": 1, "fit": 2}, workers=3)
+    45.0
+    >>> eta({"render": [10.0]}, {"render": 1, "fit": 2}) is None
+    True
+    """
+    if any(n > 0 and not done.get(kind) for kind, n in remaining.items()):
+        return None
+    return sum(n * sum(done[kind]) / len(done[kind]) for kind, n in remaining.items() if n > 0) / workers
+
+
+def duration(seconds: float | None) -> str:
+    """A time left in words, rounded to what matters: seconds under a minute, then minutes, then
+    hours and minutes.
+
+    >>> duration(None), duration(0.4), duration(42.6), duration(601), duration(7385)
+    ('unknown', '0 s', '43 s', '10 min', '2 h 3 min')
+    """
+    if seconds is None:
+        return "unknown"
+    if seconds < 59.5:
+        return f"{seconds:.0f} s"
+    minutes = round(seconds / 60)
+    return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60} min"
+
+
+def _output(job) -> Path | None:
+    """The file a job writes only when it does work (a render's ``meta.json``, a fit's
+    ``metrics.json``, a baseline's record): a job that leaves it as it was reused finished work."""
+    if isinstance(job, RenderJob):
+        return Path(job.root) / job.setup.name / META_FILE
+    if isinstance(job, FitJob):
+        return Path(job.run_dir) / "metrics.json"
+    return job.record
+
+
+def _stamp(path: Path | None) -> tuple[int, int] | None:
+    """The identity of a file as written (inode, modification time), None where there is none."""
+    if path is None or not path.exists():
+        return None
+    stat = path.stat()
+    return stat.st_ino, stat.st_mtime_ns
+
+
+class JobCount:
+    """The overall progress of a plan: at the start and after each job, one line on stderr with the jobs of each
+    kind (:data:`KINDS`) done of all, how many were reused (finished earlier: no work) and failed
+    (or not tried because one they need failed), and the time left (:func:`eta`).
+
+    Parameters
+    ----------
+    totals : dict
+        Kind → the plan's jobs of that kind.
+    workers : int
+        Jobs running side by side.
+    show : bool
+        Print the line (else only count).
+    """
+
+    def __init__(self, totals: dict[str, int], workers: int = 1, show: bool = True):
+        self.totals, self.workers, self.show = dict(totals), workers, show
+        self.done = dict.fromkeys(totals, 0)
+        self.seconds: dict[str, list[float]] = {kind: [] for kind in totals}
+        self.reused = self.failed = 0
+
+    def line(self) -> str:
+        """The progress line, e.g. ``procam: jobs done: renders 2/2, fits 1/4, scores 2/2
+        (1 reused, 0 failed); time left about 3 min``, or ``time left unknown (no fit run yet)``
+        while a kind with jobs left has none that did work."""
+        counts = ", ".join(f"{kind}s {self.done[kind]}/{n}" for kind, n in self.totals.items())
+        remaining = {kind: n - self.done[kind] for kind, n in self.totals.items()}
+        left = eta(self.seconds, remaining, self.workers)
+        if left is None:
+            untimed = [kind for kind, n in remaining.items() if n > 0 and not self.seconds[kind]]
+            when = f"unknown (no {' or '.join(untimed)} run yet)"
+        else:
+            when = f"about {duration(left)}"
+        return f"procam: jobs done: {counts} ({self.reused} reused, {self.failed} failed); time left {when}"
+
+    def report(self) -> None:
+        """Print :meth:`line` (with ``show``)."""
+        if self.show:
+            tqdm.write(self.line(), file=sys.stderr)
+
+    def not_tried(self, kind: str, n: int) -> None:
+        """Count ``n`` jobs of ``kind`` that cannot run (one they need failed) as failed."""
+        if n:
+            self.done[kind] += n
+            self.failed += n
+            self.report()
+
+    def run(self, executor, batch: Sequence[Task]) -> list[dict]:
+        """``executor.run(batch)``, counting each job as it finishes."""
+        before = [_stamp(_output(t.job)) for t in batch]
+
+        def finished(i: int, record: dict, seconds: float) -> None:
+            kind = KINDS[type(batch[i].job)]
+            self.done[kind] += 1
+            if not record["ok"]:
+                self.failed += 1
+            elif before[i] is not None and _stamp(_output(batch[i].job)) == before[i]:
+                self.reused += 1
+            else:
+                self.seconds[kind].append(seconds)
+            self.report()
+
+        return executor.run(batch, on_done=finished)
+
+
 def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Scoring, executor,
             setups: list[str], progress: bool = True) -> Outcome:
     """Carry out ``plan`` into ``out``: render its setups into ``data_root`` (finished ones are
@@ -130,7 +256,8 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
     failed), score each setup of ``setups`` once.
 
     Every job runs whatever the others do: failures are records with ``ok`` false and the error.
-    Each setup's baseline scores are kept in ``out/baselines/<setup>.json`` for reuse.
+    Each setup's baseline scores are kept in ``out/baselines/<setup>.json`` for reuse. With
+    ``progress``, the jobs show their progress bars and :class:`JobCount` its line, on stderr.
 
     Raises
     ------
@@ -139,11 +266,15 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
     """
     out, data_root = Path(out), Path(data_root)
     gpus = executor.gpus()
+    count = JobCount({"render": len(plan.setups), "fit": len({r.run for r in plan.runs}), "score": len(setups)},
+                     getattr(executor, "workers", 1), progress)
+    count.report()
     renders = [RenderJob(data_root, s, spec, progress) for s in plan.setups.values()]
-    rendered = dict(zip(plan.setups, executor.run(tasks(render, renders, gpus))))
+    rendered = dict(zip(plan.setups, count.run(executor, tasks(render, renders, gpus))))
     if scoring.renders_required and (failed := [s for s, d in rendered.items() if not d["ok"]]):
         raise ProcamError(f"render {failed[0]}: {rendered[failed[0]]['error']}")
     ready = [s for s in setups if rendered.get(s, {"ok": True})["ok"]]
+    count.not_tried("score", len(setups) - len(ready))
 
     def job(r: Run) -> FitJob:
         return FitJob(data_root / r.setup, r.cfg, out / r.run, closed_loop=scoring.closed_loop and r.scored,
@@ -164,15 +295,17 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
                                  "error": f"{r.after} failed: {fitted.get(r.after, {}).get('error')}"}
             else:
                 unique.setdefault(r.run, job(r))
+        count.not_tried("fit", len({r.run for r in stage if fitted.get(r.run, {}).get("skipped")}))
         bases = []
         if stage is stages[-1]:
             bases = [BaselineJob(data_root / s, scoring.n_test, scoring.closed_loop,
                                  out / "reachable" if scoring.masks else None, out / "baselines" / f"{s}.json",
                                  scoring.target)
                      for s in ready]
-        done = executor.run(tasks(fit, list(unique.values()), gpus) + tasks(baselines, bases, gpus))
-        fitted.update({run: {"run": str(j.run_dir), **d} for (run, j), d in zip(unique.items(), done)})
-    return Outcome(rendered, fitted, dict(zip(ready, done[len(unique):])))
+        # the baselines first: their duration is known early, for the time left
+        done = count.run(executor, tasks(baselines, bases, gpus) + tasks(fit, list(unique.values()), gpus))
+        fitted.update({run: {"run": str(j.run_dir), **d} for (run, j), d in zip(unique.items(), done[len(bases):])})
+    return Outcome(rendered, fitted, dict(zip(ready, done[:len(bases)])))
 
 
 def result_rows(plan: Plan, outcome: Outcome, out: Path) -> list[dict]:

@@ -1,0 +1,90 @@
+"""Progress of a plan: the time left from the jobs done so far (reused jobs left out, unknown while
+a kind has none done), the overall line's counts, and per-job bars naming their setup, method and
+seed."""
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+
+from test_studies import BASE, STUDY
+from compensation.cli import main
+from compensation.experiments.executors import LocalExecutor, Task
+from compensation.experiments.jobs import BaselineJob
+from compensation.experiments.plans import JobCount, eta
+from sim.errors import ProcamError
+
+
+def test_eta_leaves_out_what_is_not_known():
+    assert eta({"fit": [10.0, 30.0], "render": []}, {"fit": 2, "render": 0}) == 40.0
+    assert eta({"fit": [10.0]}, {"fit": 1, "score": 1}) is None  # no score done yet
+    assert eta({}, {"render": 0, "fit": 0}) == 0.0
+
+
+def _write_record(job: BaselineJob) -> dict:
+    """A stand-in job: writes its record unless it is there (then it is reused), fails on n_test 0."""
+    if job.n_test == 0:
+        raise RuntimeError("no test pairs")
+    if not job.record.exists():
+        job.record.write_text(json.dumps({"done": True}))
+    return {}
+
+
+def test_reused_jobs_do_not_pull_the_estimate_down(tmp_path, capsys):
+    kept = tmp_path / "kept.json"
+    kept.write_text("{}")
+    jobs = [BaselineJob(tmp_path, 4, record=kept), BaselineJob(tmp_path, 4, record=tmp_path / "new.json"),
+            BaselineJob(tmp_path, 0, record=tmp_path / "bad.json")]
+    count = JobCount({"score": 5, "fit": 1})
+    count.run(LocalExecutor(), [Task(_write_record, job) for job in jobs])
+    assert count.done == {"score": 3, "fit": 0} and (count.reused, count.failed) == (1, 1)
+    assert len(count.seconds["score"]) == 1  # the one job that did work
+    assert count.seconds["fit"] == []
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[-1].startswith("procam: jobs done: scores 3/5, fits 0/1 (1 reused, 1 failed); time left unknown")
+    count.not_tried("fit", 1)
+    assert count.line().startswith("procam: jobs done: scores 3/5, fits 1/1 (1 reused, 2 failed); time left about ")
+    assert eta(count.seconds, {"score": 2, "fit": 0}) == pytest.approx(2 * count.seconds["score"][0])
+
+
+@pytest.mark.slow
+def test_a_study_shows_its_jobs_and_names_each_bar(tmp_path, capfd, monkeypatch):
+    (tmp_path / "base.toml").write_text(BASE)
+    (tmp_path / "tiny.toml").write_text(STUDY)
+    args = ["study", str(tmp_path / "tiny.toml"), "--out", str(tmp_path / "out")]
+    assert main(args) == 0
+    err = capfd.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("procam: jobs done:")]
+    assert lines[0] == ("procam: jobs done: renders 0/2, fits 0/4, scores 0/2 (0 reused, 0 failed); "
+                        "time left unknown (no render or fit or score run yet)")
+    assert lines[-1] == ("procam: jobs done: renders 2/2, fits 4/4, scores 2/2 (0 reused, 0 failed); "
+                         "time left about 0 s")
+    assert len(lines) == 1 + 2 + 2 + 4  # the start, then each job
+    assert any(line.endswith("(no fit run yet)") for line in lines)  # renders and scores timed
+    assert re.search(r"fits 1/4, scores 2/2 .*; time left about \d+", err)
+    setups = sorted(p.name for p in (tmp_path / "out" / "data").glob("base__*"))
+    assert len(setups) == 2
+    for setup in setups:
+        assert f"{setup} · render" in err
+        assert f"{setup} · tps · seed 0 · fit" in err  # nayar fits without a bar
+    assert main(args) == 0  # again: every job reused, none timed
+    lines = [line for line in capfd.readouterr().err.splitlines() if line.startswith("procam: jobs done:")]
+    assert lines[-1] == ("procam: jobs done: renders 2/2, fits 4/4, scores 2/2 (8 reused, 0 failed); "
+                         "time left about 0 s")
+    assert all(line.endswith("run yet)") for line in lines[:-1])
+
+    import compensation.experiments.jobs as jobs
+
+    real = jobs.write_setup
+
+    def refuse(root, setup, *args, **kwargs):
+        if setup.name.endswith("0p2"):
+            raise ProcamError("simulated refusal")
+        return real(root, setup, *args, **kwargs)
+
+    monkeypatch.setattr(jobs, "write_setup", refuse)
+    (tmp_path / "tiny.toml").write_text(STUDY.replace("[0.02, 0.1]", "[0.02, 0.1, 0.2]"))
+    assert main(args) == 0  # a third setup that cannot render: its render, fits and score failed
+    lines = [line for line in capfd.readouterr().err.splitlines() if line.startswith("procam: jobs done:")]
+    assert lines[-1].startswith("procam: jobs done: renders 3/3, fits 6/6, scores 3/3 (8 reused, 4 failed)")
