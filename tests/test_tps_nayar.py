@@ -172,6 +172,27 @@ def test_tps_degenerate_pixel_falls_back_to_least_squares():
     np.testing.assert_allclose(spline_at(c[:, :1], c, coeffs), [[[0.5, 0.5, 0.5]]], atol=1e-9)
 
 
+def test_tps_least_squares_is_the_minimum_norm_solution():
+    """λ = 0 with duplicate centres (clipped captures) is singular: the fallback's solution equals
+    the SVD's minimum-norm least-squares solution (an independent LAPACK driver)."""
+    from scipy.linalg import lstsq
+
+    rng = np.random.default_rng(3)
+    c = rng.random((1, 40, 3))
+    c[0, 30:] = c[0, 0]  # ten samples clip to the same captured colour
+    p = rng.random((1, 40, 3))
+    coeffs, _, degenerate = tps.fit_pixel_splines(c, p, 0.0)
+    assert degenerate == 1
+    r = np.linalg.norm(c[0, :, None] - c[0, None], axis=-1)
+    lhs = np.zeros((44, 44))
+    lhs[:40, :40] = r * r * np.log(np.where(r > 0, r, 1.0))
+    lhs[:40, 40:43], lhs[:40, 43] = c[0], 1.0
+    lhs[40:, :40] = lhs[:40, 40:].T
+    rhs = np.zeros((44, 3))
+    rhs[:40] = p[0]
+    np.testing.assert_allclose(coeffs[0], lstsq(lhs, rhs, lapack_driver="gelsd")[0], atol=1e-8)
+
+
 def test_tps_survives_a_channel_that_never_varies():
     """A surface without blue: the blue capture is constant, the affine part is rank deficient;
     the least-squares fit reproduces the map in the red–green plane and barely extrapolates
