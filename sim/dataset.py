@@ -402,9 +402,9 @@ def _changes(out: Path, setup: Setup, expected: dict) -> list[str]:
 
 
 def _clear(out: Path) -> None:
-    """Remove a setup folder's captures and records (the transport cache, keyed by setup, spp and
-    variant, stays). ``meta.json`` goes first and the record last, so that a run killed here
-    leaves a folder that is unfinished and still refused without ``--overwrite``."""
+    """Remove a setup folder's captures and records (the root's transport cache stays: it is keyed
+    by what the light transport sees). ``meta.json`` goes first and the record last, so that a run
+    killed here leaves a folder that is unfinished and still refused without ``--overwrite``."""
     (out / layout.META_FILE).unlink(missing_ok=True)
     for folder in (layout.CAM, layout.REGISTRATION_DIR):
         if (out / folder).exists():
@@ -510,7 +510,8 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         The shared projector frames.
     fidelity, spp : optional
         Override the setup's rendering level and samples per pixel (recorded in meta.json, with
-        what ``auto`` measured; a ``transport`` operator is cached in ``<setup>/cache``).
+        what ``auto`` measured; a ``transport`` operator is cached in the root's
+        :data:`~sim.layout.CACHE_DIR`).
     progress : bool
         Show a progress bar with captures per second.
     overwrite : bool
@@ -595,7 +596,7 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
     """The captures a setup folder lacks, then its ``meta.json`` (see :func:`write_setup`)."""
     counts = {k: len(v) for k, v in frames.items()}
     t_start = time.perf_counter()
-    sim = Simulator(setup, spec.size, fidelity, spp, cache_dir=out / "cache")
+    sim = Simulator(setup, spec.size, fidelity, spp, cache_dir=layout.cache_dir(out))
     record = {**expected, "fidelity": sim.choice.level, "spp": sim.choice.spp}
     record_file = out / layout.RECORD_FILE
     if record_file.exists():  # ``auto``: the resolved level and spp are known only now

@@ -3,6 +3,7 @@
 
 ```
 DATA_ROOT/.lock                                   held by the one process writing the root
+DATA_ROOT/.cache/transport_<key>.npz              transport operators, shared by the root's setups
 DATA_ROOT/frames.json                             how the shared projector frames are made
 DATA_ROOT/{ref,train,test}/img_XXXX.png           projector frames shared by all setups
 DATA_ROOT/<setup>/setup.toml                      the fully resolved setup
@@ -23,6 +24,9 @@ from pathlib import Path
 
 LOCK_FILE = ".lock"
 """A root's lock file, held by the one process writing it."""
+CACHE_DIR = ".cache"
+"""A root's calibrated transport operators (:mod:`sim.transport`), one file per light transport:
+setups of the root that differ only in what the transport does not see share one."""
 FRAMES_FILE = "frames.json"
 """A root's record of how its projector frames are made."""
 SETUP_FILE = "setup.toml"
@@ -78,6 +82,17 @@ def image_number(name: str) -> int | None:
     """
     m = _IMAGE.fullmatch(name)
     return int(m.group(1)) if m else None
+
+
+def cache_dir(setup_dir: Path) -> Path:
+    """The transport cache a setup folder uses: its root's :data:`CACHE_DIR`.
+
+    Examples
+    --------
+    >>> cache_dir(Path("data/default")).as_posix()
+    'data/.cache'
+    """
+    return Path(setup_dir).parent / CACHE_DIR
 
 
 def capture_dir(setup_dir: Path, split: str | None = None, kind: str = WARP) -> Path:

@@ -35,7 +35,7 @@ import io
 import json
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,9 +45,12 @@ import torch
 from sim import geometry, seeds, surfaces
 from sim.errors import ProcamError, SetupError
 from sim.io import atomic_write
+from sim.projector import chain as projector_chain
 from sim.projector import lens_for
 from sim.render import Renderer
-from sim.setup import Setup, dump_setup
+from sim.setup import CameraConfig, ProjectorConfig, RegistrationConfig, Setup, dump_setup
+from sim.setup.schema import CameraView, ProjectorView
+from sim.stages import stages_of
 
 MAX_SPACING = 12
 """Largest dot spacing (``MAX_SPACING²`` calibration renders) before this level declines."""
@@ -57,8 +60,9 @@ MARGIN_PX = 0.05
 """Projector pixels added to each side of a footprint before rounding to whole pixels."""
 VERIFY_TOLERANCE = 1e-4
 """Largest ``max|T p - R(p)| / max R(p)`` accepted for the random verification frame."""
-FORMAT = 1
-"""Version of the cache file layout (part of the cache key)."""
+FORMAT = 2
+"""Version of the cache file layout (part of the cache key): 2 is :meth:`TransportOperator.save`'s
+compressed layout, 1 held the triples as they were measured, uncompressed."""
 
 
 def check_supported(setup: Setup) -> None:
@@ -169,8 +173,27 @@ def dot_spacing(lo: np.ndarray, hi: np.ndarray, seen: np.ndarray) -> int:
 
 
 def cache_key(setup: Setup, spp: int, variant: str) -> str:
-    """Hex digest identifying an operator: the fully resolved setup, spp, variant and format."""
-    text = f"{dump_setup(setup)}\nspp={spp}\nvariant={variant}\nformat={FORMAT}\n"
+    """Hex digest identifying an operator: what the calibration sees of a setup, spp, variant and
+    format.
+
+    The calibration renders the surface under the projector and the ambient light through
+    Mitsuba's camera (:func:`sim.scene.projector_scene`, :func:`sim.scene.ambient_scene`): the
+    surface, ambient and render sections, the camera's :class:`~sim.setup.schema.CameraView`,
+    the projector's :class:`~sim.setup.schema.ProjectorView`, the options of its
+    :data:`~sim.projector.chain.TRANSPORT` stages (the emitter's scale) and the lens's padding
+    (the emitter's grid and field of view, :func:`sim.projector.lens_for`). The camera's stages,
+    the projector's stages before and after the transport, the registration and the name act
+    on the operator's input or output only: setups that differ in nothing else (a study of the
+    camera noise, the projector's response or the registration) share one operator, bit for bit.
+    """
+    p, c = setup.projector, setup.camera
+    projector_keys = [f.name for f in fields(ProjectorView)] + [
+        f.name for stage in stages_of(projector_chain.TRANSPORT) for f in fields(stage.options)]
+    seen = replace(setup, name="transport", registration=RegistrationConfig(),
+                   projector=ProjectorConfig(**{k: getattr(p, k) for k in projector_keys}),
+                   camera=CameraConfig(**{f.name: getattr(c, f.name) for f in fields(CameraView)}))
+    text = (f"{dump_setup(seen)}\npad={lens_for(setup).pad}\nspp={spp}\nvariant={variant}\n"
+            f"format={FORMAT}\n")
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -381,21 +404,49 @@ class TransportOperator:
         return op
 
     def save(self, path: Path) -> None:
-        """Write the operator to an ``.npz`` file (atomically: temporary file, then rename)."""
+        """Write the operator to a compressed ``.npz`` file (atomically: temporary file, then
+        rename); :meth:`load` reads back the same operator, bit for bit.
+
+        The triples are stored in camera-pixel order, as the number of projector pixels each camera
+        pixel sees (``counts``, uint8: at most one per dot frame, so at most
+        :data:`MAX_SPACING`² = 144) and the differences of consecutive projector pixels
+        (``cols``, small numbers that deflate well); the float32 values and the ambient image as
+        their four byte planes (``values``, ``ambient``: sign and exponent bytes apart from the
+        noisy low mantissa bytes, which deflate then leaves alone). At 960x640 camera pixels and
+        an 800x600 panel this takes 14 MB where the triples as measured took 35 MB.
+        """
+        order = np.lexsort((self.cols, self.rows))
+        wc, hc = self.camera_size
         buffer = io.BytesIO()
-        np.savez(buffer, rows=self.rows.astype(np.int32), cols=self.cols.astype(np.int32),
-                 values=self.values, ambient=self.ambient,
-                 camera_size=np.array(self.camera_size), projector_size=np.array(self.projector_size),
-                 info=np.array(json.dumps(asdict(self.info))))
+        np.savez_compressed(buffer, counts=np.bincount(self.rows[order], minlength=wc * hc).astype(np.uint8),
+                            cols=np.diff(self.cols[order], prepend=0).astype(np.int32),
+                            values=_byte_planes(self.values[order]), ambient=_byte_planes(self.ambient),
+                            camera_size=np.array(self.camera_size),
+                            projector_size=np.array(self.projector_size),
+                            info=np.array(json.dumps(asdict(self.info))))
         atomic_write(path, buffer.getvalue())
 
     @classmethod
     def load(cls, path: Path) -> "TransportOperator":
         """Read an operator written by :meth:`save` (no pickled objects are loaded)."""
         with np.load(Path(path), allow_pickle=False) as z:
-            return cls(z["rows"], z["cols"], z["values"], tuple(z["camera_size"]),
-                       tuple(z["projector_size"]), z["ambient"],
+            camera_size = tuple(int(n) for n in z["camera_size"])
+            rows = np.repeat(np.arange(camera_size[0] * camera_size[1]), z["counts"])
+            return cls(rows, np.cumsum(z["cols"], dtype=np.int64),
+                       _from_byte_planes(z["values"], (len(rows), 3)), camera_size,
+                       tuple(z["projector_size"]),
+                       _from_byte_planes(z["ambient"], (camera_size[1], camera_size[0], 3)),
                        CalibrationInfo(**json.loads(str(z["info"]))))
+
+
+def _byte_planes(a: np.ndarray) -> np.ndarray:
+    """uint8 (4, N): the four bytes of each little-endian float32 value of ``a``, plane by plane."""
+    return np.ascontiguousarray(np.ascontiguousarray(a, "<f4").view(np.uint8).reshape(-1, 4).T)
+
+
+def _from_byte_planes(planes: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """The float32 array of ``shape`` whose bytes :func:`_byte_planes` gave."""
+    return np.ascontiguousarray(planes.T).view("<f4").reshape(shape).astype(np.float32)
 
 
 class TransportRenderer(Renderer):

@@ -15,7 +15,7 @@ from sim.errors import SetupError
 from sim.fidelity import probe_frame
 from sim.render import Renderer
 from sim.setup import load_setup, scene_path
-from sim.transport import MAX_SPACING, TransportOperator, TransportRenderer, footprint_ranges
+from sim.transport import MAX_SPACING, TransportOperator, TransportRenderer, cache_key, footprint_ranges
 
 SIZE = (64, 64)
 
@@ -173,6 +173,63 @@ def test_operator_is_cached_per_setup(tmp_path, default_op):
     assert again.operator.info == first.operator.info
     other = TransportRenderer(setup, 16, cache_dir=tmp_path)  # another spp: another operator
     assert not other.loaded_from_cache and len(list(tmp_path.glob("transport_*.npz"))) == 2
+
+
+def _triples(op: TransportOperator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The operator's (camera pixel, projector pixel, values) triples in camera-pixel order."""
+    order = np.lexsort((op.cols, op.rows))
+    return op.rows[order], op.cols[order], op.values[order]
+
+
+def test_cache_file_is_compressed_and_reads_back_bit_for_bit(tmp_path, default_op):
+    _, tr = default_op
+    op = tr.operator
+    op.save(tmp_path / "op.npz")
+    back = TransportOperator.load(tmp_path / "op.npz")
+    for got, want in zip(_triples(back), _triples(op)):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(back.ambient, op.ambient)
+    assert back.values.dtype == op.ambient.dtype == np.float32
+    assert (back.camera_size, back.projector_size, back.info) == (op.camera_size, op.projector_size, op.info)
+    measured = op.nnz * (4 + 4 + 12) + op.ambient.nbytes  # int32 indices, float32 values
+    assert (tmp_path / "op.npz").stat().st_size < 0.8 * measured
+
+
+SEEN_ELSEWHERE = {"projector": {"gamma": 1.8, "black_level": 0.01, "mixing": [[0.9, 0.1, 0.0], [0.0, 1.0, 0.0],
+                                                                              [0.0, 0.1, 0.9]],
+                                "flare": 0.02, "flicker": 0.01, "translucency_mfp": 5.0,
+                                "translucency_fraction": 0.3},
+                  "camera": {"shot_noise": 1e-3, "read_noise": 1e-2, "response": "gamma:2.2", "exposure": 2.0,
+                             "psf_sigma": 0.5, "vignetting": 0.2, "jpeg_quality": 80},
+                  "registration": {"method": "homography", "jitter": 0.5}}
+"""Keys of the stages before and after the light transport, and of the registration."""
+
+
+def test_setups_that_differ_outside_the_transport_share_one_operator(tmp_path):
+    """Setups that differ in the camera's stages, the projector's stages that leave its padded grid
+    alone, the registration and the name calibrate the same operator, bit for bit, and share one
+    cache file; what the transport sees (pose, brightness, padding, surface, room light, seed,
+    spp) makes another."""
+    scene = {"surface": {"texture": "noise"}, "ambient": {"radiance": [0.02, 0.02, 0.02]}}
+    base = tiny_setup(**scene)
+    other = tiny_setup(**scene, name="other", **SEEN_ELSEWHERE)
+    assert cache_key(base, 4, "v") == cache_key(other, 4, "v")
+    a = TransportRenderer(base, 4, cache_dir=tmp_path / "a").operator
+    b = TransportRenderer(other, 4, cache_dir=tmp_path / "b").operator
+    for got, want in zip(_triples(b), _triples(a)):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(b.ambient, a.ambient)
+    assert TransportRenderer(other, 4, cache_dir=tmp_path / "a").loaded_from_cache
+    assert len(list((tmp_path / "a").glob("transport_*.npz"))) == 1
+    apart = [tiny_setup(**scene, projector={"brightness": 2.0}),
+             tiny_setup(**scene, projector={"psf_sigma": 1.0}),  # a wider emitter grid
+             tiny_setup(**scene, projector={"position": [0.01, 0.0, 1.0]}),
+             tiny_setup(**scene, camera={"aperture_radius": 0.002}),
+             tiny_setup(surface={"texture": "noise", "texture_seed": 3}, ambient=scene["ambient"]),
+             tiny_setup(surface=scene["surface"], ambient={"radiance": [0.03, 0.03, 0.03]}),
+             tiny_setup(**scene, render={"seed": 1})]
+    keys = {cache_key(s, 4, "v") for s in apart} | {cache_key(base, 8, "v"), cache_key(base, 4, "w")}
+    assert len(keys) == len(apart) + 2 and cache_key(base, 4, "v") not in keys
 
 
 def test_footprint_bounds_where_the_camera_pixel_lands():

@@ -27,7 +27,7 @@ from sim.capture import Simulator
 from sim.dataset import canonical_size
 from sim.errors import DatasetError
 from sim.io import read_json, to_float, to_uint8, write_png
-from sim.layout import META_FILE, SETUP_FILE, image_name
+from sim.layout import META_FILE, SETUP_FILE, cache_dir, image_name
 from sim.setup import load_setup
 
 CAPTURES_DIR = "closed_loop"
@@ -48,7 +48,7 @@ def simulator_for(setup_dir: str | Path) -> Simulator:
     size = canonical_size(meta)
     if size is None:
         raise DatasetError(f"{setup_dir / META_FILE}: no canonical width and height")
-    sim = Simulator(setup, size, meta.get("fidelity"), meta.get("spp"), cache_dir=setup_dir / "cache",
+    sim = Simulator(setup, size, meta.get("fidelity"), meta.get("spp"), cache_dir=cache_dir(setup_dir),
                     max_depth=(meta.get("fidelity_choice") or {}).get("max_depth"),
                     exposure=meta.get("camera_exposure"))
     _check_same_hardware(setup_dir / META_FILE, meta, sim)
