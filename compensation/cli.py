@@ -52,7 +52,7 @@ def cmd_render(args: argparse.Namespace) -> None:
     check_counts(Path(args.out), spec, [s.name for s in setups])
     for setup in setups:
         out = write_setup(Path(args.out), setup, spec, args.fidelity, args.spp,
-                          progress=not args.quiet, overwrite=args.overwrite)
+                          progress=not args.quiet, overwrite=args.overwrite, raw=args.raw)
         print(f"procam: {setup.name} -> {out}")
 
 
@@ -63,6 +63,12 @@ def _test_frames_option(p) -> None:
                    help="the generated test frames: mixed (photographs, patterns and blends, as the "
                         "training frames; the default) or photo (natural images only, as in the "
                         "paper's datasets)")
+
+
+RAW_HELP = ("also keep every capture at camera resolution (cam/raw: 960x640 PNGs on the shipped "
+            "scenes, before the warp into cam/warp), as the official layout has them; no method reads "
+            "them")
+"""Help of ``--raw`` (render, bench, study)."""
 
 
 def add_render(sub) -> None:
@@ -86,6 +92,7 @@ def add_render(sub) -> None:
                    help="render again a folder rendered from another setup, variant, fidelity, spp "
                         "or size (instead of refusing it); on a finished folder, check every file "
                         "and re-render the damaged ones")
+    p.add_argument("--raw", action="store_true", help=RAW_HELP)
     p.add_argument("--only", metavar="NAME[,NAME…]", default=None,
                    help="render only these setups of the suite (comma-separated names)")
     p.add_argument("--list", action="store_true",
@@ -380,10 +387,13 @@ def cmd_bench(args: argparse.Namespace) -> None:
     cfg = BenchConfig(profile=args.profile, methods=_names(args.methods, "--methods"),
                       sizes=args.sizes, tables=tuple(args.tables.split(",")), size=args.size,
                       n_test=n_test, overrides=options, closed_loop=args.closed_loop, target=_target(args),
-                      test_frames=args.test_frames)
+                      test_frames=args.test_frames, raw=args.raw)
     if args.only is not None and not args.suite:
         raise ProcamError("--only selects setups of a suite: give the suite (the setups found under "
                           "--data are all taken)")
+    if args.raw and not args.suite:
+        raise ProcamError("--raw keeps the raw captures of the setups a bench renders: give the suite "
+                          "(the setups found under --data are taken as they are, not rendered)")
     suite = select_setups(load_setups(args.suite), args.only, args.suite) if args.suite else None
     white = load_setups(args.white)[0] if suite and "2" in cfg.tables else None
     executor = _executor(args)
@@ -423,6 +433,7 @@ def add_bench(sub) -> None:
     p.add_argument("--closed-loop", action="store_true",
                    help="also project every compensation back through the setup and score it "
                         "(simulated setups only: those with a setup.toml)")
+    p.add_argument("--raw", action="store_true", help=RAW_HELP)
     _test_frames_option(p)
     _training_options(p)
     _target_options(p, "global")
@@ -446,7 +457,8 @@ def cmd_study(args: argparse.Namespace) -> None:
                            methods=_names(args.methods, "--methods") if args.methods is not None else None,
                            only=_names(args.only, "--only") if args.only is not None else None,
                            target_policy=args.target_policy, out_of_reach=args.out_of_reach,
-                           closed_loop=False if args.surrogate_only else None)
+                           closed_loop=False if args.surrogate_only else None,
+                           raw=True if args.raw else None)
     executor = _executor(args)
     done = run_study(study, Path(args.out), executor, progress=not args.quiet and executor.name == "local")
     print(f"procam: study {study.name}: {done['jobs']} runs ({done['trained']} trained, "
@@ -491,6 +503,7 @@ def add_study(sub) -> None:
     smoke.add_argument("--surrogate-only", action="store_true",
                        help="score the held-out pairs only, no closed loop (as closed_loop = false "
                             "in the study file)")
+    p.add_argument("--raw", action="store_true", help=RAW_HELP + " (as raw = true in the study file)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     _target_options(p, None)
     _executor_options(p)

@@ -8,7 +8,8 @@ projector frames read); a render that fails before its first capture (what only 
 leaves no record that blocks the corrected run. Every PNG is written to a temporary file and renamed, so a killed run leaves no truncated
 image; a re-run refuses a root or setup folder whose records (``frames.json``, ``setup.toml``,
 ``render.json``) differ from what it would write, rewrites any file that is damaged or missing and
-finishes the rest.
+finishes the rest. The captures at camera resolution (``cam/raw``) are kept only when asked for
+(``raw``): no reader of a dataset needs them, and a resume needs only the warped captures.
 """
 from __future__ import annotations
 
@@ -32,8 +33,8 @@ from sim import camera, images, layout, registration, seeds
 from sim.capture import Simulator, capture_workers, pipelined
 from sim.errors import DatasetError, ProcamError, SetupError
 from sim.fidelity import check_level, check_spp, describe, resolve
-from sim.io import (atomic_write, intact_png, read_json, remove_temporaries, write_json, write_png,
-                    write_text)
+from sim.io import (atomic_write, intact_png, read_json, read_png, remove_temporaries, write_json,
+                    write_png, write_text)
 from sim.layout import REF, TEST, TRAIN, image_name
 from sim.setup import Setup, dump_setup, load_setup
 from sim.variant import choose_variant
@@ -376,6 +377,47 @@ def _meta_counts(meta_file: Path) -> dict[str, int]:
     return counts
 
 
+def _holds_raw(meta_file: Path) -> bool:
+    """Whether a finished setup's ``meta.json`` records its raw captures as kept (``raw``; a file
+    without the key was written when they always were)."""
+    return read_json(meta_file, "setup metadata").get("raw", True) is not False
+
+
+def read_raw(setup_dir: Path, split: str, number: int) -> np.ndarray:
+    """A capture of a rendered setup at camera resolution, before its warp into the canonical view:
+    ``<setup>/cam/raw/<split>/img_XXXX.png`` (:func:`write_setup` with ``raw``).
+
+    Parameters
+    ----------
+    setup_dir : Path
+        The setup folder.
+    split : str
+        :data:`~sim.layout.REF`, :data:`~sim.layout.TRAIN` or :data:`~sim.layout.TEST`.
+    number : int
+        The 1-based image number.
+
+    Returns
+    -------
+    numpy.ndarray
+        uint8 (Hc, Wc, 3).
+
+    Raises
+    ------
+    DatasetError
+        If the file is not there, naming the folder, whether the setup was rendered without its raw
+        captures, and ``--raw``.
+    """
+    path = layout.capture_dir(Path(setup_dir), split, layout.RAW) / image_name(number)
+    if not path.is_file():
+        meta_file = Path(setup_dir) / layout.META_FILE
+        why = ("the setup was rendered without its raw captures"
+               if meta_file.exists() and not _holds_raw(meta_file) else "no such file")
+        raise DatasetError(f"{path.parent}: no raw capture {path.name} ({why}); render the setup with "
+                           "--raw (procam render --raw, bench --raw, or raw = true in a study file) to "
+                           "keep the captures at camera resolution")
+    return read_png(path)
+
+
 def _same_setup(setup_file: Path, setup: Setup) -> bool:
     """True when ``setup_file`` exists and reads back to ``setup`` (whatever its formatting)."""
     if not setup_file.exists():
@@ -469,8 +511,9 @@ def write_registration(folder: Path, setup: Setup, reg: registration.Registratio
 
 
 def _finish_capture(sim: Simulator, radiance: np.ndarray | None, raw: np.ndarray | None, stream: int,
-                    index: int, raw_file: Path, warp_file: Path) -> dict[str, float]:
-    """Camera model (unless ``raw`` was read back), warp and atomic PNG writes of one capture.
+                    index: int, raw_file: Path | None, warp_file: Path) -> dict[str, float]:
+    """Camera model (unless ``raw`` was read back), warp and atomic PNG writes of one capture (the
+    capture at camera resolution only with a ``raw_file``).
 
     The ``finish`` stage of :func:`sim.capture.pipelined`, on a worker thread; returns the seconds
     spent per phase (``camera``, ``registration``, ``png``) for the caller to add up.
@@ -480,7 +523,8 @@ def _finish_capture(sim: Simulator, radiance: np.ndarray | None, raw: np.ndarray
     if raw is None:
         raw = sim.expose(radiance, stream, index)
         seconds["camera"] = time.perf_counter() - t0
-        write_png(raw_file, raw)
+        if raw_file is not None:
+            write_png(raw_file, raw)
     t1 = time.perf_counter()
     warped = registration.warp(raw, sim.warp_map)
     t2 = time.perf_counter()
@@ -491,7 +535,8 @@ def _finish_capture(sim: Simulator, radiance: np.ndarray | None, raw: np.ndarray
 
 
 def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None = None,
-                spp: int | None = None, progress: bool = True, overwrite: bool = False) -> Path:
+                spp: int | None = None, progress: bool = True, overwrite: bool = False,
+                raw: bool = False) -> Path:
     """Render one setup into ``root/<setup.name>`` (resuming an interrupted run).
 
     Nothing is written before every input is checked (:func:`check_render`, the projector frames
@@ -518,6 +563,13 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         Re-render a setup folder whose captures were rendered from another setup file, Mitsuba
         variant, fidelity, spp, size or frames, instead of refusing it; for a finished setup of
         the same configuration, check every file again and re-render the damaged ones.
+    raw : bool
+        Also keep each capture at camera resolution (``cam/raw``, the official layout's; a
+        960x640 PNG where the warped one is 256²), which no reader of the dataset needs.
+        ``meta.json`` records whether every capture's is there (``raw``). Not part of what
+        identifies the captures: a setup finished with them is finished without, and one
+        finished without them renders its captures again to add them (the warped ones come
+        out the same bytes).
 
     Returns
     -------
@@ -544,7 +596,8 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
                                "render it again")
         meta_file = out / layout.META_FILE
         if not changes and not overwrite and meta_file.exists() and all(
-                _meta_counts(meta_file).get(k, 0) >= n for k, n in counts.items()):
+                _meta_counts(meta_file).get(k, 0) >= n for k, n in counts.items()) and (
+                not raw or _holds_raw(meta_file)):
             write_frames(root, spec, frames)
             return out
         for folder in (*(root / split for split in layout.SPLITS), out):
@@ -555,7 +608,7 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         write_frames(root, spec, frames)
         write_text(out / layout.SETUP_FILE, dump_setup(setup))
         try:
-            return _render(out, setup, spec, frames, fidelity, spp, expected, overwrite, progress)
+            return _render(out, setup, spec, frames, fidelity, spp, expected, overwrite, progress, raw)
         except ProcamError:
             if not (out / layout.RECORD_FILE).exists():  # nothing rendered: the corrected setup may start
                 (out / layout.SETUP_FILE).unlink(missing_ok=True)
@@ -592,8 +645,10 @@ def _check_response(sim: Simulator, ref_frames: np.ndarray, name: str) -> float:
 
 def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarray],
             fidelity: str | None, spp: int | None, expected: dict, overwrite: bool,
-            progress: bool) -> Path:
-    """The captures a setup folder lacks, then its ``meta.json`` (see :func:`write_setup`)."""
+            progress: bool, raw: bool) -> Path:
+    """The captures a setup folder lacks, then its ``meta.json`` (see :func:`write_setup`). A
+    capture is done when its warped file is intact (and, with ``raw``, its raw file); a missing
+    warped capture whose raw file is intact is warped from it, not rendered again."""
     counts = {k: len(v) for k, v in frames.items()}
     t_start = time.perf_counter()
     sim = Simulator(setup, spec.size, fidelity, spp, cache_dir=layout.cache_dir(out))
@@ -616,9 +671,9 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
         return (layout.capture_dir(out, split, layout.RAW) / image_name(i),
                 layout.capture_dir(out, split) / image_name(i))
 
-    todo = [(split, i) for split, stack in frames.items() for i in range(1, len(stack) + 1)
-            if intact_png(files(split, i)[1], warp_shape) is None
-            or intact_png(files(split, i)[0], raw_shape) is None]
+    every = [(split, i) for split, stack in frames.items() for i in range(1, len(stack) + 1)]
+    todo = [(split, i) for split, i in every if intact_png(files(split, i)[1], warp_shape) is None
+            or (raw and intact_png(files(split, i)[0], raw_shape) is None)]
     workers = capture_workers()
     finish_seconds: dict[str, float] = defaultdict(float)
 
@@ -631,7 +686,9 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
 
     def finish(job: tuple[str, int], rendered) -> dict[str, float]:
         split, i = job
-        return _finish_capture(sim, *rendered, seeds.STREAMS[split], i, *files(split, i))
+        raw_file, warp_file = files(split, i)
+        return _finish_capture(sim, *rendered, seeds.STREAMS[split], i, raw_file if raw else None,
+                               warp_file)
 
     with tqdm(total=len(todo), desc=f"{setup.name} · render", unit="capture", disable=not progress) as bar:
         for seconds in pipelined(todo, render, finish, workers):
@@ -662,6 +719,7 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
         "camera_resolution": list(setup.camera.resolution),
         "camera_exposure": sim.exposure,
         "counts": counts,
+        "raw": raw or all(files(split, i)[0].exists() for split, i in every),
         "frames": spec.source(),
         "projector_defocus_px": r.defocus_px,
         "captures_this_run": len(todo),

@@ -10,7 +10,8 @@ DATA_ROOT/<setup>/setup.toml                      the fully resolved setup
 DATA_ROOT/<setup>/render.json                     how its captures are rendered
 DATA_ROOT/<setup>/registration/exact_map.npz      ground truth: the exact map's xy and mask
 DATA_ROOT/<setup>/registration/registration.json  the map used, the homography and its error
-DATA_ROOT/<setup>/cam/{raw,warp}/{ref,train,test}/img_XXXX.png
+DATA_ROOT/<setup>/cam/warp/{ref,train,test}/img_XXXX.png  captures in the canonical view
+DATA_ROOT/<setup>/cam/raw/{ref,train,test}/img_XXXX.png   at camera resolution (only when asked for)
 DATA_ROOT/<setup>/meta.json                       written last: marks a finished setup
 ```
 ``ref`` holds the :data:`N_PLAIN` plain colours (``img_0001.png`` black … ``img_0125.png``

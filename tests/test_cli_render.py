@@ -13,6 +13,8 @@ import pytest
 
 from compensation.cli import main
 from helpers import TINY_RENDER, tiny_setup_file, tiny_toml
+from sim.dataset import read_raw
+from sim.errors import DatasetError
 from sim.io import read_png
 
 
@@ -29,16 +31,16 @@ def test_layout(tiny_render):
     data = tiny_render / "data"
     for split, n in (("ref", 126), ("train", 2), ("test", 1)):
         assert len(list((data / split).glob("img_*.png"))) == n
-        for kind, shape in (("raw", (64, 64, 3)), ("warp", (32, 32, 3))):
-            files = sorted((data / "tiny" / "cam" / kind / split).glob("img_*.png"))
-            assert [f.name for f in files] == [f"img_{i:04d}.png" for i in range(1, n + 1)]
-            assert read_png(files[0]).shape == shape
+        files = sorted((data / "tiny" / "cam" / "warp" / split).glob("img_*.png"))
+        assert [f.name for f in files] == [f"img_{i:04d}.png" for i in range(1, n + 1)]
+        assert read_png(files[0]).shape == (32, 32, 3)
+    assert not (data / "tiny" / "cam" / "raw").exists()  # kept only with --raw
     assert read_png(data / "train" / "img_0001.png").shape == (32, 32, 3)
     assert read_png(data / "ref" / "img_0001.png").max() == 0
     assert read_png(data / "ref" / "img_0125.png").min() == 255
     meta = json.loads((data / "tiny" / "meta.json").read_text())
     assert meta["spp"] == 4 and meta["fidelity"] == "direct"
-    assert meta["counts"] == {"ref": 126, "train": 2, "test": 1}
+    assert meta["counts"] == {"ref": 126, "train": 2, "test": 1} and meta["raw"] is False
     assert set(meta["timings_s"]) >= {"render", "camera", "registration", "png"}
     # auto on a plane: the homography, unless the 32² view is too small for the checkerboard
     reg = meta["registration"]
@@ -51,6 +53,61 @@ def test_layout(tiny_render):
     white = read_png(data / "tiny" / "cam" / "warp" / "ref" / "img_0125.png").mean()
     black = read_png(data / "tiny" / "cam" / "warp" / "ref" / "img_0001.png").mean()
     assert white > black + 50
+
+
+@pytest.fixture(scope="module")
+def raw_render(tiny_render, tmp_path_factory) -> Path:
+    """The tiny setup rendered with --raw: its root folder."""
+    root = tmp_path_factory.mktemp("raw") / "data"
+    assert main(["render", str(tiny_render / "tiny.toml"), "--out", str(root), *TINY_RENDER, "--raw"]) == 0
+    return root
+
+
+def test_raw_keeps_the_camera_captures_and_changes_nothing_else(tiny_render, raw_render):
+    """--raw adds cam/raw at camera resolution, records it, and every other file holds the same
+    bytes as without it (the warped captures too)."""
+    plain = tiny_render / "data"
+    for split, n in (("ref", 126), ("train", 2), ("test", 1)):
+        files = sorted((raw_render / "tiny" / "cam" / "raw" / split).glob("img_*.png"))
+        assert [f.name for f in files] == [f"img_{i:04d}.png" for i in range(1, n + 1)]
+        assert read_png(files[0]).shape == (64, 64, 3)
+        assert np.array_equal(read_raw(raw_render / "tiny", split, n), read_png(files[-1]))
+    assert json.loads((raw_render / "tiny" / "meta.json").read_text())["raw"] is True
+    with_raw = {p.relative_to(raw_render): p for p in raw_render.rglob("*") if p.is_file()}
+    without = {p.relative_to(plain): p for p in plain.rglob("*") if p.is_file()}
+    assert {r for r in with_raw if r.parts[:3] != ("tiny", "cam", "raw")} == set(without)
+    warped = [r for r in without if r.parts[:3] == ("tiny", "cam", "warp")]
+    assert len(warped) == 126 + 2 + 1
+    for rel in without:
+        if rel.name not in ("meta.json", ".lock"):
+            assert with_raw[rel].read_bytes() == without[rel].read_bytes(), rel
+
+
+def test_raw_is_not_what_makes_a_dataset_different(tiny_render, raw_render, tmp_path):
+    """A setup finished with its raw captures is finished without --raw (nothing rendered, nothing
+    written); one finished without them renders its captures again for --raw, the warped ones to
+    the same bytes."""
+    root = Path(shutil.copytree(raw_render, tmp_path / "with"))
+    before = _files(root)
+    assert main(["render", str(tiny_render / "tiny.toml"), "--out", str(root), *TINY_RENDER]) == 0
+    assert _files(root) == before
+    root = _copy(tiny_render, tmp_path)
+    assert main(["render", str(tiny_render / "tiny.toml"), "--out", str(root), *TINY_RENDER, "--raw"]) == 0
+    meta = json.loads((root / "tiny" / "meta.json").read_text())
+    assert meta["raw"] is True and meta["captures_this_run"] == 126 + 2 + 1
+    for path in sorted(raw_render.rglob("*.png")):
+        assert (root / path.relative_to(raw_render)).read_bytes() == path.read_bytes(), path
+
+
+def test_raw_captures_asked_of_a_setup_without_them_are_refused_by_name(tiny_render, raw_render):
+    folder = tiny_render / "data" / "tiny"
+    with pytest.raises(DatasetError) as info:
+        read_raw(folder, "test", 1)
+    message = str(info.value)
+    assert str(folder / "cam" / "raw" / "test") in message and "--raw" in message
+    assert "rendered without its raw captures" in message
+    with pytest.raises(DatasetError, match="no such file.*--raw"):
+        read_raw(raw_render / "tiny", "test", 2)
 
 
 def test_resume_rewrites_nothing_and_finishes_interrupted(tiny_render, tmp_path):
@@ -111,7 +168,7 @@ def test_same_seed_same_bytes_other_seed_other_noise(tiny_render, tmp_path):
     for file, seed, out in (("a.toml", 0, "a"), ("b.toml", 1, "b")):
         setup = tiny_setup_file(tmp_path, file, render={"seed": seed})
         assert main(["render", str(setup), "--out", str(tmp_path / out), *TINY_RENDER]) == 0
-    rel = Path("tiny/cam/raw/test/img_0001.png")
+    rel = Path("tiny/cam/warp/test/img_0001.png")
     assert (tmp_path / "a" / rel).read_bytes() == (tiny_render / "data" / rel).read_bytes()
     a, b = read_png(tmp_path / "a" / rel), read_png(tmp_path / "b" / rel)
     assert 0 < np.abs(a.astype(int) - b.astype(int)).mean() < 10
@@ -127,7 +184,7 @@ def test_output_does_not_depend_on_the_worker_threads(tiny_render, tmp_path, mon
                  *TINY_RENDER]) == 0
     assert json.loads((tmp_path / "one" / "tiny" / "meta.json").read_text())["capture_workers"] == 1
     pngs = sorted((tiny_render / "data" / "tiny" / "cam").rglob("*.png"))
-    assert len(pngs) == 2 * (126 + 2 + 1)
+    assert len(pngs) == 126 + 2 + 1
     for p in pngs:
         twin = tmp_path / "one" / p.relative_to(tiny_render / "data")
         assert twin.read_bytes() == p.read_bytes(), twin

@@ -1,6 +1,8 @@
 """`procam render SUITE --list` and `--only NAME[,NAME…]` of `procam render` and `procam bench`."""
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import pytest
 
 import compensation.experiments.bench
@@ -77,6 +79,22 @@ def test_unknown_names_are_refused_with_the_valid_ones(suite, tmp_path, capsys, 
 def test_bench_only_needs_a_suite(tmp_path, capsys):
     assert main(["bench", "--data", str(tmp_path), "--out", str(tmp_path / "b"), "--only", "x"]) == 2
     assert "--only selects setups of a suite" in capsys.readouterr().err
+
+
+def test_bench_raw_needs_a_suite_and_reaches_its_config(suite, tmp_path, monkeypatch, capsys):
+    assert main(["bench", "--data", str(tmp_path), "--out", str(tmp_path / "b"), "--raw"]) == 2
+    assert "--raw keeps the raw captures of the setups a bench renders" in capsys.readouterr().err
+    seen = {}
+
+    def fake_run_bench(setups, out, cfg, data_root, white, progress, limit, executor=None):
+        seen["raw"] = cfg.raw
+        return SimpleNamespace(rows=[], failures=[])
+
+    monkeypatch.setattr(compensation.experiments.bench, "run_bench", fake_run_bench)
+    monkeypatch.setattr(compensation.reports.tables, "write_tables", lambda out, cfg, result: {})
+    for flag, raw in ((["--raw"], True), ([], False)):
+        assert main(["bench", str(suite), *flag, "--out", str(tmp_path / "b"), "--tables", "1", "--quiet"]) == 0
+        assert seen == {"raw": raw}
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -251,7 +251,7 @@ def test_killed_at_every_stage_resumes_to_the_same_bytes(reference, tmp_path, ca
     _killed_render(argv, "data/ref/img_*.png", nth=5)  # while writing the shared frames
     assert json.loads((root / "frames.json").read_text())["source"]["seed"] == 0  # written first
     assert not (root / "tiny").exists()
-    _killed_render(argv, "raw/*/img_*.png", nth=10)  # while writing captures
+    _killed_render(argv, "warp/*/img_*.png", nth=10)  # while writing captures
     assert (root / "tiny" / "render.json").exists() and not (root / "tiny" / "meta.json").exists()
     # resumed with another frame seed: refused (captures depend on the frames), nothing touched
     before = _snapshot(root)
@@ -265,17 +265,58 @@ def test_killed_at_every_stage_resumes_to_the_same_bytes(reference, tmp_path, ca
         assert path.name == "meta.json" or path.stat().st_mode & 0o027 == 0, path
 
 
+@pytest.mark.slow
+def test_killed_with_raw_resumes_without_it_to_the_same_warped_bytes(reference, tmp_path):
+    """A --raw render killed half-way and resumed without --raw: the captures it had finished are
+    warped from their raw files, the others rendered, every warped capture the bytes of an
+    uninterrupted run; the raw captures of half the setup are not recorded as kept. With --raw
+    again, the rest are rendered: the whole dataset of an uninterrupted --raw run."""
+    root = tmp_path / "data"
+    argv = ["render", str(tiny_setup_file(tmp_path)), "--out", str(root), *ARGS]
+    _killed_render([*argv, "--raw"], "raw/*/img_*.png", nth=64)
+    raw = sorted((root / "tiny" / "cam" / "raw").rglob("img_*.png"))
+    assert 60 <= len(raw) < 126 + 2 + 1
+    for victim in (root / "tiny" / "cam" / "warp" / "ref").glob("img_000*.png"):
+        victim.unlink()  # their raw files are there: warped again, not rendered
+    assert main(argv) == 0
+    meta = json.loads((root / "tiny" / "meta.json").read_text())
+    assert meta["raw"] is False and meta["captures_this_run"] > 126 + 2 + 1 - len(raw)
+    assert sorted((root / "tiny" / "cam" / "raw").rglob("img_*.png")) == raw
+    warped = sorted((reference / "tiny" / "cam" / "warp").rglob("img_*.png"))
+    for path in warped:
+        assert (root / path.relative_to(reference)).read_bytes() == path.read_bytes(), path
+    assert main([*argv, "--raw"]) == 0
+    full = tmp_path / "full"
+    assert main(["render", str(tmp_path / "tiny.toml"), "--out", str(full), *ARGS, "--raw"]) == 0
+    _assert_same_dataset(root, full)
+
+
 def test_damaged_files_are_written_again(reference, tmp_path):
     root = _copy(reference, tmp_path)
     (root / "tiny" / "meta.json").unlink()  # an unfinished setup
-    for rel, keep in (("tiny/cam/raw/train/img_0001.png", 0.5), ("tiny/cam/warp/test/img_0001.png", -1),
+    for rel, keep in (("tiny/cam/warp/train/img_0001.png", 0.5), ("tiny/cam/warp/test/img_0001.png", -1),
                       ("train/img_0002.png", 0.3), ("tiny/cam/warp/ref/img_0126.png", 0)):
         path = root / rel
         data = path.read_bytes()
         path.write_bytes(data[:keep] if keep <= 0 else data[:int(len(data) * keep)])
-    write_png(root / "tiny/cam/raw/ref/img_0002.png", np.zeros((5, 5, 3), np.uint8))  # wrong size
+    write_png(root / "tiny/cam/warp/ref/img_0002.png", np.zeros((5, 5, 3), np.uint8))  # wrong size
     assert main(["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS]) == 0
     _assert_same_dataset(root, reference)
+
+
+def test_damaged_raw_captures_are_written_again_with_raw(reference, tmp_path):
+    """With --raw a damaged raw capture is a capture to render again; without, a setup does not
+    need it."""
+    root = _copy(reference, tmp_path)
+    assert main(["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS, "--raw"]) == 0
+    full = _copy(root, tmp_path / "full")
+    (root / "tiny" / "meta.json").unlink()
+    victim = root / "tiny/cam/raw/train/img_0001.png"
+    victim.write_bytes(victim.read_bytes()[:100])
+    write_png(root / "tiny/cam/raw/ref/img_0002.png", np.zeros((5, 5, 3), np.uint8))  # wrong size
+    assert main(["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS, "--raw"]) == 0
+    assert json.loads((root / "tiny" / "meta.json").read_text())["captures_this_run"] == 2
+    _assert_same_dataset(root, full)
 
 
 def test_frame_of_another_source_is_refused(reference, tmp_path, capsys):

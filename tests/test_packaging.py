@@ -72,8 +72,8 @@ def test_the_wheel_renders_outside_the_checkout(tmp_path):
     data = tmp_path / "data"
     for split, n in (("ref", 126), ("train", 2), ("test", 1)):
         assert len(list((data / split).glob("img_*.png"))) == n
-        for kind in ("raw", "warp"):
-            assert len(list((data / "default" / "cam" / kind / split).glob("img_*.png"))) == n
+        assert len(list((data / "default" / "cam" / "warp" / split).glob("img_*.png"))) == n
+    assert not (data / "default" / "cam" / "raw").exists()  # kept only with --raw
     for name in ("frames.json", "default/setup.toml", "default/render.json", "default/meta.json",
                  "default/registration/exact_map.npz"):
         assert (data / name).is_file(), name

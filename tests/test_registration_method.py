@@ -13,6 +13,7 @@ from compensation.experiments.closed_loop import simulator_for
 from helpers import tiny_setup
 from sim import registration
 from sim.capture import Simulator
+from sim.dataset import read_raw
 from sim.errors import SetupError
 from sim.io import read_png
 from sim.setup import dump_setup, load_setup, parse_setup
@@ -35,14 +36,15 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> float:
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
     """One root holding the same plane registered three ways: auto (a homography), exact, and a
-    homography from corners jittered by 1.5 canonical pixels."""
+    homography from corners jittered by 1.5 canonical pixels; the captures at camera resolution
+    kept (--raw)."""
     tmp = tmp_path_factory.mktemp("reg")
     names = {"auto": {}, "exact": {"method": "exact"}, "jitter": {"method": "homography", "jitter": 1.5}}
     for name, keys in names.items():
         path = tmp / f"{name}.toml"
         path.write_text(dump_setup(tiny_setup(**PLANE, name=name, registration=keys)))
         assert main(["render", str(path), "--out", str(tmp / "data"), "--size", "64",
-                     "--n-train", "2", "--n-test", "2", "--quiet"]) == 0
+                     "--n-train", "2", "--n-test", "2", "--quiet", "--raw"]) == 0
     return tmp / "data"
 
 
@@ -69,7 +71,7 @@ def test_homography_captures_are_close_to_the_exact_ones(rendered):
     the camera noise's PSNR; corners jittered by 1.5 px are visibly worse."""
     for split, i in (("ref", 126), ("train", 1), ("test", 2)):
         name = f"img_{i:04d}.png"
-        raw = [read_png(rendered / s / "cam" / "raw" / split / name) for s in ("auto", "exact", "jitter")]
+        raw = [read_raw(rendered / s, split, i) for s in ("auto", "exact", "jitter")]
         assert np.array_equal(raw[0], raw[1]) and np.array_equal(raw[0], raw[2])
         auto, exact, jitter = (read_png(rendered / s / "cam" / "warp" / split / name)
                                for s in ("auto", "exact", "jitter"))
@@ -100,7 +102,7 @@ def test_exact_method_warps_with_the_recorded_ground_truth(rendered):
         wmap = registration.WarpMap(saved["xy"], saved["mask"])
     for split, i in (("ref", 60), ("train", 2)):
         name = f"img_{i:04d}.png"
-        raw = read_png(rendered / "exact" / "cam" / "raw" / split / name)
+        raw = read_raw(rendered / "exact", split, i)
         assert np.array_equal(read_png(rendered / "exact" / "cam" / "warp" / split / name),
                               registration.warp(raw, wmap))
 
@@ -115,7 +117,7 @@ def test_closed_loop_warps_as_its_dataset(rendered):
         assert sim.registration.method == "homography"
         np.testing.assert_array_equal(sim.registration.homography, np.asarray(recorded))
         frame = read_png(rendered / "train" / "img_0001.png")
-        raw = read_png(rendered / name / "cam" / "raw" / "train" / "img_0001.png")
+        raw = read_raw(rendered / name, "train", 1)
         assert np.array_equal(sim.warp(raw), read_png(rendered / name / "cam" / "warp" / "train" / "img_0001.png"))
         # the same seeded capture (stream TRAIN, index 1) comes out as the dataset's, bit for bit
         assert np.array_equal(sim.capture(frame[None], stream=1, start=1)[0],

@@ -355,3 +355,33 @@ def test_closed_loop_key_must_be_a_bool(tmp_path):
     (tmp_path / "s.toml").write_text(STUDY.replace("n_test = 4", 'n_test = 4\nclosed_loop = "no"'))
     with pytest.raises(ProcamError, match=r"s\.toml: closed_loop = 'no': expected true or false"):
         load_study(tmp_path / "s.toml")
+
+
+def test_raw_key_is_a_bool_the_command_line_may_set(tmp_path):
+    (tmp_path / "base.toml").write_text(BASE)
+    (tmp_path / "s.toml").write_text(STUDY.replace("n_test = 4", "n_test = 4\nraw = true"))
+    assert load_study(tmp_path / "s.toml").raw
+    shipped = load_study(ROOT / "scenes" / "studies" / "projector-defocus.toml")
+    assert not shipped.raw and with_overrides(shipped, raw=True).raw
+    (tmp_path / "s.toml").write_text(STUDY.replace("n_test = 4", 'n_test = 4\nraw = 1'))
+    with pytest.raises(ProcamError, match=r"s\.toml: raw = 1: expected true or false"):
+        load_study(tmp_path / "s.toml")
+
+
+@pytest.mark.slow
+def test_study_keeps_raw_captures_only_when_asked(tmp_path):
+    """A study's datasets hold no raw captures unless its file or --raw asks; asked again with
+    --raw, the finished setup renders them (its warped captures unchanged)."""
+    (tmp_path / "base.toml").write_text(BASE)
+    (tmp_path / "s.toml").write_text(STUDY)
+    argv = ["study", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out"), "--quiet", "--only", "0",
+            "--methods", "nayar", "--surrogate-only"]
+    assert main(argv) == 0
+    [setup] = [p.parent for p in (tmp_path / "out" / "data").glob("*/meta.json")]
+    assert not (setup / "cam" / "raw").exists()
+    assert json.loads((setup / "meta.json").read_text())["raw"] is False
+    warped = {p: p.read_bytes() for p in (setup / "cam" / "warp").rglob("*.png")}
+    assert main([*argv, "--raw"]) == 0
+    assert json.loads((setup / "meta.json").read_text())["raw"] is True
+    assert len(list((setup / "cam" / "raw").rglob("*.png"))) == len(warped) == 126 + 8 + 4
+    assert {p: p.read_bytes() for p in (setup / "cam" / "warp").rglob("*.png")} == warped

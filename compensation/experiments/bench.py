@@ -64,6 +64,8 @@ class BenchConfig:
     """What the closed loop scores against (:mod:`~compensation.experiments.targets`)."""
     test_frames: str = "mixed"
     """Kind of the rendered test frames (:data:`sim.images.FRAME_KINDS`: ``mixed`` or ``photo``)."""
+    raw: bool = False
+    """Keep the rendered setups' captures at camera resolution too (``cam/raw``)."""
 
     def __post_init__(self):
         for name in self.methods:
@@ -247,7 +249,7 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
                      test_frames=cfg.test_frames)
     scoring = Scoring(cfg.tests, cfg.closed_loop, official=True, masks=cfg.closed_loop,
                       renders_required=True, target=cfg.target)
-    outcome = execute(plan, out, data_root, spec, scoring, executor, setups, progress)
+    outcome = execute(plan, out, data_root, spec, scoring, executor, setups, progress, cfg.raw)
     seed = cfg.overrides.get("seed", 0)
     tabled = [r for r in plan.runs if r.labels["table"] != "pretrain"]
     write_results(out, (), result_rows(replace(plan, runs=tuple(tabled)), outcome, out),

@@ -86,6 +86,8 @@ class RenderJob:
     setup: Setup
     spec: FrameSpec
     progress: bool = False
+    raw: bool = False
+    """Also keep the captures at camera resolution (:func:`sim.dataset.write_setup`)."""
 
 
 @contextmanager
@@ -105,7 +107,7 @@ def render(job: RenderJob) -> dict:
     """Run a :class:`RenderJob`; returns ``setup`` and ``seconds`` (waiting included)."""
     t0 = time.perf_counter()
     with _render_turn(Path(job.root)):
-        write_setup(Path(job.root), job.setup, job.spec, progress=job.progress)
+        write_setup(Path(job.root), job.setup, job.spec, progress=job.progress, raw=job.raw)
     return {"setup": job.setup.name, "seconds": round(time.perf_counter() - t0, 3)}
 
 

@@ -249,7 +249,7 @@ class JobCount:
 
 
 def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Scoring, executor,
-            setups: list[str], progress: bool = True) -> Outcome:
+            setups: list[str], progress: bool = True, raw: bool = False) -> Outcome:
     """Carry out ``plan`` into ``out``: render its setups into ``data_root`` (finished ones are
     kept), fit its runs (a run whose folder holds the same configuration is reused; runs sharing a
     folder are fitted once; a run with ``after`` waits for that run and is not tried when it
@@ -257,7 +257,8 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
 
     Every job runs whatever the others do: failures are records with ``ok`` false and the error.
     Each setup's baseline scores are kept in ``out/baselines/<setup>.json`` for reuse. With
-    ``progress``, the jobs show their progress bars and :class:`JobCount` its line, on stderr.
+    ``progress``, the jobs show their progress bars and :class:`JobCount` its line, on stderr. With
+    ``raw``, the renders keep the captures at camera resolution too.
 
     Raises
     ------
@@ -269,7 +270,7 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
     count = JobCount({"render": len(plan.setups), "fit": len({r.run for r in plan.runs}), "score": len(setups)},
                      getattr(executor, "workers", 1), progress)
     count.report()
-    renders = [RenderJob(data_root, s, spec, progress) for s in plan.setups.values()]
+    renders = [RenderJob(data_root, s, spec, progress, raw) for s in plan.setups.values()]
     rendered = dict(zip(plan.setups, count.run(executor, tasks(render, renders, gpus))))
     if scoring.renders_required and (failed := [s for s, d in rendered.items() if not d["ok"]]):
         raise ProcamError(f"render {failed[0]}: {rendered[failed[0]]['error']}")

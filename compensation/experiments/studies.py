@@ -16,6 +16,7 @@ A study file (TOML; the shipped ones are ``scenes/studies/*.toml``)::
     target_policy = "global"        # optional: what the closed loop scores against: none, global, image
     out_of_reach = 0.01             # optional: share of pixels a global or image target may leave out
     closed_loop = true              # optional: false scores the held-out pairs only (no re-projection)
+    raw = false                     # optional: true keeps the captures at camera resolution (cam/raw)
 
     [setup]                         # optional: partial setup values applied to every point
     projector = { focus_distance = 0.8 }
@@ -70,8 +71,8 @@ from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
 from sim.setup.schema import SECTIONS
 
 STUDY_KEYS = ("name", "question", "base", "methods", "seeds", "n_train", "n_test", "size", "profile",
-              "render_seeds", "only", "target_policy", "out_of_reach", "closed_loop", "setup", "options",
-              "axis")
+              "render_seeds", "only", "target_policy", "out_of_reach", "closed_loop", "raw", "setup",
+              "options", "axis")
 """Keys of a study file."""
 AXIS_KEYS = ("key", "values", "label", "unit")
 """Keys of an ``[[axis]]`` table."""
@@ -126,6 +127,8 @@ class Study:
     """Also project every compensation back through its setup and score the capture (false: the
     surrogate scores on held-out pairs only, for studies where re-rendering every test image of
     every run costs more than the fits)."""
+    raw: bool = False
+    """Keep each setup's captures at camera resolution too (``cam/raw``), which no method reads."""
     overrides: dict = field(default_factory=dict)
     """What the command line changed (recorded in ``study.json``)."""
 
@@ -246,7 +249,7 @@ def load_study(path: Path | str) -> Study:
     fixed = data.get("setup", {})
     if not isinstance(fixed, dict) or "name" in fixed:
         raise _error(path, "setup", fixed, "expected a table of setup sections (without a name)")
-    for key in ("render_seeds", "closed_loop"):
+    for key in ("render_seeds", "closed_loop", "raw"):
         if not isinstance(data.get(key, key == "closed_loop"), bool):
             raise _error(path, key, data[key], "expected true or false")
     only = data.get("only", [])
@@ -263,18 +266,19 @@ def load_study(path: Path | str) -> Study:
         n_test=_positive_ints(path, "n_test", data.get("n_test", defaults["n_test"]), False)[0],
         size=_size(path, data.get("size", defaults["size"])), profile=profile,
         render_seeds=data.get("render_seeds", False), setup=dict(fixed), options=dict(options),
-        only=tuple(o.strip() for o in only), target=target, closed_loop=data.get("closed_loop", True))
+        only=tuple(o.strip() for o in only), target=target, closed_loop=data.get("closed_loop", True),
+        raw=data.get("raw", False))
 
 
 def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: tuple[int, ...] | None = None,
                    n_test: int | None = None, iters: int | None = None, seeds: int | None = None,
                    methods: tuple[str, ...] | None = None, only: tuple[str, ...] | None = None,
                    target_policy: str | None = None, out_of_reach: float | None = None,
-                   closed_loop: bool | None = None) -> Study:
+                   closed_loop: bool | None = None, raw: bool | None = None) -> Study:
     """The study with the command line's overrides (None: unchanged), recorded in
     :attr:`Study.overrides`. ``n_train`` and ``iters`` replace the values of an axis on that key;
-    ``seeds`` N takes the seeds 0 … N-1; ``target_policy``, ``out_of_reach`` and ``closed_loop``
-    replace the study file's.
+    ``seeds`` N takes the seeds 0 … N-1; ``target_policy``, ``out_of_reach``, ``closed_loop`` and
+    ``raw`` replace the study file's.
 
     Raises
     ------
@@ -283,7 +287,7 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
     """
     given = {"size": size, "n_train": n_train, "n_test": n_test, "iters": iters, "seeds": seeds,
              "methods": methods, "only": only, "target_policy": target_policy, "out_of_reach": out_of_reach,
-             "closed_loop": closed_loop}
+             "closed_loop": closed_loop, "raw": raw}
     given = {k: v for k, v in given.items() if v is not None}
     changes: dict = {}
     axes = list(study.axes)
@@ -312,6 +316,8 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
         changes["only"] = tuple(only)
     if closed_loop is not None:
         changes["closed_loop"] = closed_loop
+    if raw is not None:
+        changes["raw"] = raw
     if target_policy is not None or out_of_reach is not None:
         changes["target"] = TargetPolicy(target_policy or study.target.name,
                                          study.target.out_of_reach if out_of_reach is None else out_of_reach)
@@ -478,7 +484,7 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     write_study_record(out, {**record, "executor": executor.name})
     spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size)
     outcome = execute(plan, out, out / "data", spec, Scoring(study.n_test, study.closed_loop, target=study.target), executor,
-                      list(plan.setups), progress)
+                      list(plan.setups), progress, study.raw)
     rows = result_rows(plan, outcome, out)
     results = write_results(out, [a.key for a in study.axes], rows)
     fitted = [d for d in outcome.fitted.values() if not d.get("skipped")]
