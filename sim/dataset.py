@@ -680,9 +680,9 @@ def _render(out: Path, setup: Setup, spec: FrameSpec, frames: dict[str, np.ndarr
     def render(job: tuple[str, int]) -> tuple[np.ndarray | None, np.ndarray | None]:
         split, i = job
         t0 = time.perf_counter()
-        raw = intact_png(files(split, i)[0], raw_shape)
+        kept = intact_png(files(split, i)[0], raw_shape)
         finish_seconds["png"] += time.perf_counter() - t0
-        return (sim.linear(frames[split][i - 1], seeds.STREAMS[split], i) if raw is None else None), raw
+        return (sim.linear(frames[split][i - 1], seeds.STREAMS[split], i) if kept is None else None), kept
 
     def finish(job: tuple[str, int], rendered) -> dict[str, float]:
         split, i = job
