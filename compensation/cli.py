@@ -406,12 +406,16 @@ def cmd_bench(args: argparse.Namespace) -> None:
     for name in ("table1", "table2", "table3"):
         if name in files:
             print(Path(files[name]).read_text())
+    if result.failures:
+        total = len(result.rows) + len(result.failures)
+        print(f"procam: warning: {len(result.failures)} of {total} runs failed (their errors are in "
+              f"{files['failures']}); the tables average the runs that finished", file=sys.stderr)
 
 
 def add_bench(sub) -> None:
     p = sub.add_parser("bench", help="the paper's tables over a suite of setups or a dataset",
                        description="Render what is missing, train every method x size x setup, "
-                                   "evaluate, and write Tables 1-3 (Markdown and CSV) beside the "
+                                   "evaluate, and write Tables 1-3 (Markdown, CSV and LaTeX) beside the "
                                    "paper's figures, and each run's outputs in the official layout "
                                    "(OUT/official/<setup>/{cam,prj}/cmp/<tag>). Without a suite, "
                                    "every setup found under --data (a folder holding cam/warp, "

@@ -195,7 +195,7 @@ def test_paired_table_and_latex(bench):
         assert float(row["CI high"]) < 0 and row["share A better"] == "0.0000" and row["p"] == "0.5000"
 
 
-def test_resume_trains_nothing_and_failures_are_isolated(bench, monkeypatch):
+def test_resume_trains_nothing_and_failures_are_isolated(bench, monkeypatch, capsys):
     runs = bench / "bench" / "runs"
     metrics = sorted(runs.rglob("metrics.json"))
     before = {p: p.stat().st_mtime_ns for p in metrics}
@@ -208,7 +208,9 @@ def test_resume_trains_nothing_and_failures_are_isolated(bench, monkeypatch):
     monkeypatch.setattr(METHODS["nayar"], "fit", broken)
     for run in runs.glob("s1/nayar-*"):
         shutil.rmtree(run)
+    capsys.readouterr()
     assert _bench(bench) == 0
+    assert "warning: 2 of " in capsys.readouterr().err  # a failed run is said, not only filed
     failures = json.loads((bench / "bench" / "failures.json").read_text())["failures"]
     assert {(f["setup"], f["method"]) for f in failures} == {("s1", "nayar")}
     assert all("simulated crash" in f["error"] for f in failures)

@@ -57,7 +57,7 @@ def test_only_selects_the_bench_setups(suite, tmp_path, monkeypatch):
 
     def fake_run_bench(setups, out, cfg, data_root, white, progress, limit, executor=None):
         seen["names"], seen["limit"] = [s.name for s in setups], limit
-        return None
+        return SimpleNamespace(rows=[], failures=[])
 
     monkeypatch.setattr(compensation.experiments.bench, "run_bench", fake_run_bench)
     monkeypatch.setattr(compensation.reports.tables, "write_tables", lambda out, cfg, result: {})
