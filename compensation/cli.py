@@ -101,14 +101,19 @@ def add_render(sub) -> None:
     p.set_defaults(func=cmd_render)
 
 
+def _twice(values: tuple) -> list[str]:
+    """The values given more than once, sorted (a list option runs each value once)."""
+    return sorted({str(v) for v in values if values.count(v) > 1})
+
+
 def _spp_list(text: str) -> tuple[int, ...]:
-    """Parse ``1,4,16`` into samples per pixel (each >= 1)."""
+    """Parse ``1,4,16`` into samples per pixel (each >= 1, each once)."""
     try:
         values = tuple(int(t) for t in text.split(","))
     except ValueError:
         values = ()
-    if not values or min(values) < 1:
-        raise argparse.ArgumentTypeError(f"spp {text!r}: expected comma-separated integers >= 1")
+    if not values or min(values) < 1 or _twice(values):
+        raise argparse.ArgumentTypeError(f"spp {text!r}: expected comma-separated distinct integers >= 1")
     return values
 
 
@@ -116,7 +121,7 @@ def cmd_bench_sim(args: argparse.Namespace) -> None:
     from sim.bench_sim import bench_sim
     from sim.fidelity import PROBE_CLASSES
 
-    classes = tuple(args.classes.split(",")) if args.classes else PROBE_CLASSES
+    classes = _names(args.classes, "--classes") if args.classes else PROBE_CLASSES
     unknown = [c for c in classes if c not in PROBE_CLASSES]
     if unknown:
         raise ProcamError(f"--classes {args.classes!r}: unknown {', '.join(unknown)}; expected "
@@ -160,7 +165,11 @@ def _positive(text: str) -> int:
 
 
 def _int_list(text: str) -> tuple[int, ...]:
-    return tuple(_positive(t) for t in text.split(","))
+    values = tuple(_positive(t) for t in text.split(","))
+    if twice := _twice(values):
+        raise argparse.ArgumentTypeError(f"{text!r}: {', '.join(twice)} given twice; expected distinct "
+                                         "positive integers")
+    return values
 
 
 def _option_type(hint) -> dict:
@@ -385,7 +394,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
     if "n_train" in options:
         raise ProcamError("--n-train: the bench takes its training sizes from --sizes")
     cfg = BenchConfig(profile=args.profile, methods=_names(args.methods, "--methods"),
-                      sizes=args.sizes, tables=tuple(args.tables.split(",")), size=args.size,
+                      sizes=args.sizes, tables=_names(args.tables, "--tables"), size=args.size,
                       n_test=n_test, overrides=options, closed_loop=args.closed_loop, target=_target(args),
                       test_frames=args.test_frames, raw=args.raw)
     if args.only is not None and not args.suite:
@@ -446,10 +455,13 @@ def add_bench(sub) -> None:
 
 
 def _names(text: str, option: str) -> tuple[str, ...]:
-    """The comma-separated names of ``option``; refused when none is given (``--only ,``)."""
+    """The comma-separated names of ``option``; refused when none is given (``--only ,``) or one
+    twice."""
     names = tuple(m.strip() for m in text.split(",") if m.strip())
     if not names:
         raise ProcamError(f"{option} {text!r}: expected one or more comma-separated names")
+    if twice := _twice(names):
+        raise ProcamError(f"{option} {text!r}: {', '.join(twice)} given twice; expected each once")
     return names
 
 

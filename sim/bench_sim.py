@@ -35,9 +35,12 @@ from sim.fidelity import (DATASET_CAPTURES, FLOOR_FRACTION, LEVELS, PROBE_CLASSE
 from sim.io import atomic_write
 from sim.render import Renderer
 from sim.setup import Setup
+from sim.setup.schema import MAX_SPP
 from sim.transport import TransportRenderer
 
 MARKERS = {"path": "o", "direct": "s", "transport": "^"}
+MAX_REPEATS = 1000
+"""Most timed captures per level × spp (``--repeats``): their median settles long before."""
 _PSNR_CAP = 99.0
 """dB shown for an error indistinguishable from the reference's own noise."""
 
@@ -122,13 +125,15 @@ def measure(setup: Setup, reference_spp: int = 1024, classes=PROBE_CLASSES,
     Raises
     ------
     ProcamError
-        If ``reference_spp``, ``window``, ``repeats`` or an ``spp`` is below 1 (named with its
+        If ``reference_spp``, ``window``, ``repeats`` or an ``spp`` is below 1, an spp above
+        :data:`~sim.setup.schema.MAX_SPP` or ``repeats`` above :data:`MAX_REPEATS` (named with its
         ``procam bench-sim`` option).
     """
-    for name, value in (("ref-spp", reference_spp), ("window", window), ("repeats", repeats),
-                        *(("spp", n) for n in spp)):
-        if value is not None and value < 1:
-            raise ProcamError(f"bench-sim --{name} {value}: expected an integer >= 1")
+    for name, value, most in (("ref-spp", reference_spp, MAX_SPP), ("window", window, None),
+                              ("repeats", repeats, MAX_REPEATS), *(("spp", n, MAX_SPP) for n in spp)):
+        if value is not None and (value < 1 or most is not None and value > most):
+            raise ProcamError(f"bench-sim --{name} {value}: expected an integer >= 1"
+                              + (f" and <= {most}" if most is not None else ""))
     probe = Probe(setup, classes, reference_spp, window)
     auto = choose(setup)
     rows = []

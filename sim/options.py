@@ -181,6 +181,8 @@ class Spec:
 
 FLOAT32_MAX = 3.4028234663852886e38
 """The largest float32: captures are computed in float32, so a larger number is not a value."""
+FLOAT32_TINY = 1.1754943508222875e-38
+"""The smallest normal float32: a positive number below it is rounded towards 0 in float32."""
 
 
 def _finite(value: float) -> bool:

@@ -1,7 +1,8 @@
 """Helpers shared by the test modules: the tiny setups the physics and end-to-end tests build on,
 as validated setups (:func:`tiny_setup`) or as setup files (:func:`tiny_toml`,
-:func:`tiny_setup_file`), the options of the tiny rendered dataset (:data:`TINY_RENDER`), and the
-rows of the CSV files procam writes (:func:`csv_rows`)."""
+:func:`tiny_setup_file`), a study whose renders all fail (:func:`failing_study_file`), ``mi.render`` ended by Ctrl-C
+(:func:`interrupted_render`), the options of the tiny rendered dataset (:data:`TINY_RENDER`), and
+the rows of the CSV files procam writes (:func:`csv_rows`)."""
 from __future__ import annotations
 
 import copy
@@ -60,6 +61,29 @@ def tiny_setup_file(folder: Path, file: str = "tiny.toml", **keys) -> Path:
     path = folder / file
     path.write_text(tiny_toml("tiny", 64, **keys))
     return path
+
+
+def failing_study_file(folder: Path, name: str = "allfail") -> Path:
+    """The study file ``folder / <name>.toml`` (with its base ``base.toml``) whose every render is
+    refused, its projector too dim to be seen: ``procam study`` runs it in seconds into a study
+    folder of failed rows."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "base.toml").write_text(tiny_toml("base", 16, projector={"brightness": 1e-30},
+                                                registration={"method": "exact"}))
+    path = folder / f"{name}.toml"
+    path.write_text(f'name = "{name}"\nbase = "base.toml"\nmethods = ["tps"]\nn_train = 4\nn_test = 2\n'
+                    'size = 16\n\n[[axis]]\nkey = "ambient.radiance"\nvalues = [0.02, 0.1]\n')
+    return path
+
+
+def interrupted_render(*args, **kwargs):
+    """``mi.render`` ended by Ctrl-C, as Dr.Jit reports it: a RuntimeError raised from the
+    KeyboardInterrupt."""
+    try:
+        raise KeyboardInterrupt
+    except KeyboardInterrupt as exc:
+        raise RuntimeError("drjit.custom(<mitsuba.python.util._RenderOp>): error while performing a "
+                           "custom differentiable operation. (see above).") from exc
 
 
 TINY_RENDER = ["--size", "32", "--n-train", "2", "--n-test", "1", "--quiet"]

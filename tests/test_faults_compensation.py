@@ -11,14 +11,16 @@ import stat
 import subprocess
 import sys
 import time
+import typing
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from helpers import tiny_toml
+from helpers import failing_study_file, tiny_toml
 from compensation.cli import main
-from compensation.methods import make_config
+from compensation.methods import METHODS, make_config
+from compensation.methods.tps import fit_splines
 from compensation.experiments.runs import partial_dir, train_run
 from sim.io import write_png
 
@@ -257,3 +259,132 @@ def test_bench_option_values_are_checked_before_any_work(tmp_path, capsys):
     _fails(capsys, ["bench", "ideal", "--out", str(tmp_path / "b"), "--methods", "compennet",
                     "--tables", "1", "--lr", "-1"], "option lr = -1.0")
     assert not (tmp_path / "b").exists()
+
+
+# -- class sweeps: every training option, every limit, every record a report reads -------------
+
+def _float_options() -> dict[str, tuple[str, str]]:
+    """Every training option holding a float, once per options class: name -> (a method, option)."""
+    found = {}
+    for method, cls in METHODS.items():
+        for option, hint in typing.get_type_hints(cls.options).items():
+            if hint is float:
+                found.setdefault(f"{cls.options.__name__}.{option}", (method, option))
+    return found
+
+
+FLOAT_OPTION_TRIES = {f"{method} --{option.replace('_', '-')} {value}": (method, option, value)
+                      for method, option in _float_options().values()
+                      for value in ("1e39", "1e300", "inf", "1e-300")}
+"""Every float option at values float32, in which training computes, cannot hold (or rounds to 0)."""
+
+
+@pytest.mark.parametrize("case", FLOAT_OPTION_TRIES)
+def test_every_float_option_refuses_what_float32_cannot_hold(setup_dir, tmp_path, capsys, case):
+    method, option, value = FLOAT_OPTION_TRIES[case]
+    _fails(capsys, ["train", str(setup_dir), "--method", method, f"--{option.replace('_', '-')}", value,
+                    "--out", str(tmp_path / "run"), *TRAIN], f"option {option} = ", "training computes in float32")
+    assert _tree(tmp_path) == set()
+
+
+COUNT_TRIES = {
+    "compennet --iters 2**70": (["--method", "compennet", "--iters", str(2 ** 70)], "at most 1000000"),
+    "pix2pix --iters 2**63": (["--method", "pix2pix", "--iters", str(2 ** 63)], "at most 1000000"),
+    "tps --seed 2**32": (["--method", "tps", "--seed", str(2 ** 32)], "from 0 to 4294967295"),
+    "compennet --seed 2**70": (["--method", "compennet", "--seed", str(2 ** 70)], "from 0 to 4294967295"),
+}
+"""Counts that would allocate (the loss log holds a row per iteration) or overflow (a seed)."""
+
+
+@pytest.mark.parametrize("case", COUNT_TRIES)
+def test_huge_training_counts_are_refused_before_any_work(setup_dir, tmp_path, capsys, case):
+    options, expected = COUNT_TRIES[case]
+    _fails(capsys, ["train", str(setup_dir), *options, "--out", str(tmp_path / "run"), *TRAIN], expected)
+    assert _tree(tmp_path) == set()
+
+
+def test_a_spline_fit_starts_no_more_workers_than_it_has_tasks():
+    rng = np.random.default_rng(0)
+    centres, values = rng.random((3, 6, 3)), rng.random((3, 6, 3))
+    many, _, _ = fit_splines(centres, values, workers=2 ** 62)  # was an OverflowError
+    assert np.array_equal(many, fit_splines(centres, values, workers=1)[0])
+
+
+@pytest.mark.parametrize("size", [{"width": 100000, "height": 100000}, {"width": 0, "height": 32},
+                                  {"width": -4, "height": 32}, {"width": "abc", "height": 32},
+                                  {"width": 1e300, "height": 32}, {"width": True, "height": 32}, [32, 32], None],
+                         ids=["100000", "0", "-4", "text", "1e300", "true", "a list", "null"])
+def test_a_run_size_is_checked_before_an_image_is_resized_to_it(runs, tmp_path, capsys, size):
+    run = tmp_path / "run"
+    shutil.copytree(runs / "nayar", run)
+    config = json.loads((run / "config.json").read_text())
+    (run / "config.json").write_text(json.dumps({**config, "image_size": size}))
+    write_png(tmp_path / "y.png", np.full((32, 32, 3), 100, np.uint8))
+    _fails(capsys, ["compensate", str(run), str(tmp_path / "y.png"), "--out", str(tmp_path / "f.png")],
+           str(run / "config.json"), "image_size = ", "integer from 1 to 4096")
+    assert not (tmp_path / "f.png").exists()
+
+
+STUDY_TRIES = {
+    "--seeds 2**70": (["--seeds", str(2 ** 70)], ["--seeds", "at most 10000"]),
+    "--seeds 10**9": (["--seeds", str(10 ** 9)], ["--seeds 1000000000", "at most 10000"]),
+    "--size 100000": (["--size", "100000"], ["--size", "100000", "<= 4096"]),
+    "--n-test 2**40": (["--n-test", str(2 ** 40)], [f"--n-test {2 ** 40}", "GiB in memory"]),
+    "--n-train 2**40": (["--n-train", str(2 ** 40)], [f"--n-train {2 ** 40}", "GiB in memory"]),
+    "--iters 2**70": (["--methods", "compennet", "--iters", str(2 ** 70)], ["option iters", "at most 1000000"]),
+    "--methods tps,tps": (["--methods", "tps,tps"], ["--methods 'tps,tps': tps given twice"]),
+    "--only 0,0": (["--only", "0,0"], ["--only '0,0': 0 given twice"]),
+    "seeds = [0, 0]": (["seeds = [0, 0]"], ["seeds = [0, 0]: expected distinct values"]),
+    "seeds = [2**32]": ([f"seeds = [{2 ** 32}]"], ["seeds", "integers from 0 to 4294967295"]),
+    "methods twice": (['methods = ["tps", "tps"]'], ["methods = ['tps', 'tps']: expected distinct values"]),
+    "n_train twice": (["n_train = [4, 4]"], ["n_train = [4, 4]: expected distinct values"]),
+    "only twice": (['only = ["0", "0"]'], ["only = ['0', '0']: expected distinct values"]),
+    "12000 runs": ([f"[[axis]]\nkey = \"camera.read_noise\"\nvalues = {[i / 1e4 for i in range(6000)]}"],
+                   ["12000 runs", "expected at most 10000"]),
+}
+"""Per try: command-line options (``--…``) or lines added to the study file, and what the refusal
+says; each is refused before anything is written."""
+
+
+@pytest.mark.parametrize("case", STUDY_TRIES)
+def test_study_counts_and_selections_are_refused_before_anything_is_written(tmp_path, capsys, case):
+    extra, expected = STUDY_TRIES[case]
+    study = failing_study_file(tmp_path)
+    options = extra if extra[0].startswith("--") else []
+    if not options:  # a key replaced at the top, or one more [[axis]] at the end
+        key = extra[0].split(" = ", 1)[0]
+        kept = [line for line in study.read_text().splitlines() if not line.startswith(f"{key} = ")]
+        study.write_text("\n".join([*kept, *extra] if key.startswith("[[") else [*extra, *kept]) + "\n")
+    _fails(capsys, ["study", str(study), "--out", str(tmp_path / "out"), "--quiet", *options], *expected)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("argv", [["study", "S", "--n-train", "4,4"], ["bench", "ideal", "--sizes", "4,4"]],
+                         ids=["study --n-train 4,4", "bench --sizes 4,4"])
+def test_a_repeated_count_is_an_argument_error(tmp_path, capsys, argv):
+    argv = [str(failing_study_file(tmp_path)) if a == "S" else a for a in argv]
+    with pytest.raises(SystemExit) as exit_:  # an argparse type: usage and the value
+        main([*argv, "--out", str(tmp_path / "out")])
+    assert exit_.value.code == 2 and "'4,4': 4 given twice" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("option, expected", [(["--methods", "tps,tps"], "tps given twice"),
+                                              (["--tables", "1,1"], "--tables '1,1': 1 given twice"),
+                                              (["--only", "ideal,ideal"], "--only ideal,ideal: ideal given twice")])
+def test_bench_selections_given_twice_are_refused(tmp_path, capsys, option, expected):
+    _fails(capsys, ["bench", "ideal", "--out", str(tmp_path / "b"), "--methods", "tps", "--tables", "1",
+                    *option], expected)
+    assert not (tmp_path / "b").exists()
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> Path:
+    """Runs of nayar, tps and CompenNet (2 iterations) on a synthetic dataset of their own."""
+    from synthetic import make_dataset
+
+    tmp = tmp_path_factory.mktemp("runs")
+    setup = make_dataset(tmp / "data")
+    for method, extra in (("nayar", []), ("tps", []), ("compennet", ["--iters", "2", "--batch", "4"])):
+        assert main(["train", str(setup), "--method", method, *extra, "--out", str(tmp / method), *TRAIN]) == 0
+    return tmp

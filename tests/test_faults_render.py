@@ -21,6 +21,8 @@ from helpers import tiny_setup_file, tiny_toml
 from sim import camera, registration
 from sim.errors import ProcamError
 from sim.io import read_png, write_png
+from sim.options import option_fields, spec_of
+from sim.setup.schema import SECTIONS
 from sim.variant import check_forced
 
 REPO = Path(__file__).resolve().parents[1]
@@ -176,6 +178,15 @@ BAD_INPUTS = {
     "render.max_depth 2**63-1": (lambda t: [str(tiny_setup_file(t, render={"max_depth": 2 ** 63 - 1}))],
                                  ["render.max_depth", "in [2, 64]"]),
     "render.seed 2**62": (lambda t: [str(_big_seed(t))], ["render.seed", "in [0, 4.29497e+09]"]),
+    "--n-train 2**70": (lambda t: [str(tiny_setup_file(t)), "--n-train", str(2 ** 70)],
+                        [f"--n-train {2 ** 70}", "GiB in memory", "half of this machine's memory"]),
+    "--n-test 2**70": (lambda t: [str(tiny_setup_file(t)), "--n-test", str(2 ** 70)],
+                       [f"--n-test {2 ** 70}", "GiB in memory"]),
+    "--frame-seed 2**70": (lambda t: [str(tiny_setup_file(t)), "--frame-seed", str(2 ** 70)],
+                           ["--frame-seed", "<= 4294967295"]),
+    "--spp 2**63": (lambda t: [str(tiny_setup_file(t)), "--spp", str(2 ** 63)], ["--spp", "from 1 to 65536"]),
+    "--size 8x100000": (lambda t: [str(tiny_setup_file(t)), "--size", "8x100000"],
+                        ["--size", "100000", "<= 4096"]),
 }
 
 
@@ -192,6 +203,92 @@ def test_bad_input_is_refused_and_writes_nothing(tmp_path, capsys, case):
     argv = make(tmp_path)
     _refused(capsys, ["render", argv[0], "--out", str(tmp_path / "data"), *ARGS, *argv[1:]], *fragments)
     assert not (tmp_path / "data").exists()
+
+
+def _setup_keys():
+    """Every key of a setup file: (section, key, its spec, the keys it needs beside it: a surface's
+    own key its geometry)."""
+    for section, cls in SECTIONS.items():
+        for f in option_fields(cls):
+            spec = spec_of(f)
+            if spec.kind == "variant":
+                for geometry, options in spec.variants.items():
+                    yield from ((section, g.name, spec_of(g), {"geometry": geometry})
+                            for g in option_fields(options))
+            else:
+                yield section, f.name, spec, {}
+
+
+def _filled(spec, value):
+    """``value`` in the shape a key of ``spec`` holds (a number, every entry of a vector or matrix)."""
+    if spec.kind == "vector":
+        return [value] * spec.length
+    return [[value] * spec.length for _ in range(spec.length)] if spec.kind == "matrix" else value
+
+
+NUMBER_TRIES = {f"{section}.{key}={value:g}": (section, key, spec, extra, value)
+                for section, key, spec, extra in _setup_keys() if spec.kind in ("number", "vector", "matrix")
+                and not spec.integer for value in (1e39, 1e300, -1e39)}
+"""Every key holding numbers, at values finite in float64 but not in float32 (captures are
+computed in float32)."""
+INTEGER_TRIES = {f"{section}.{key}={value}": (section, key, spec, extra, value)
+                 for section, key, spec, extra in _setup_keys() if spec.kind == "integer" or spec.integer
+                 for value in (2 ** 63 - 1, -2 ** 63)}
+"""Every key holding integers, at the ends of what a TOML integer holds."""
+
+
+@pytest.mark.parametrize("key", [*NUMBER_TRIES, *INTEGER_TRIES])
+def test_every_number_key_refuses_what_float32_or_its_range_cannot_hold(tmp_path, capsys, key):
+    section, name, spec, extra, value = {**NUMBER_TRIES, **INTEGER_TRIES}[key]
+    setup = tiny_setup_file(tmp_path, **{section: {**extra, name: _filled(spec, value)}})
+    _refused(capsys, ["render", str(setup), "--out", str(tmp_path / "data"), *ARGS], f"{section}.{name} = ",
+             ": expected ")
+    assert not (tmp_path / "data").exists()
+
+
+CONSTANT_CAPTURES = {
+    "projector.brightness=1e-300": {"projector": {"brightness": 1e-300}},
+    "projector.brightness=1e30": {"projector": {"brightness": 1e30}},
+    "projector.mixing=1e30": {"projector": {"mixing": [[1e30, 0.0, 0.0], [0.0, 1e30, 0.0], [0.0, 0.0, 1e30]]}},
+    "camera.exposure=1e-300": {"camera": {"exposure": 1e-300}},
+    "camera.exposure=1e30": {"camera": {"exposure": 1e30}},
+    "camera.white_balance=1e-300": {"camera": {"white_balance": [1e-300] * 3}},
+    "camera.white_balance=1e30": {"camera": {"white_balance": [1e30] * 3}},
+    "camera.shot_noise=1e30": {"camera": {"shot_noise": 1e30}},
+    "camera.read_noise=1e30": {"camera": {"read_noise": 1e30}},
+    "camera.aperture_radius=1e30": {"camera": {"aperture_radius": 1e30}},
+    "camera.focus_distance=1e-300": {"camera": {"aperture_radius": 0.01, "focus_distance": 1e-300}},
+    "camera.position=1e30 away": {"camera": {"position": [0.25, 0.0, 1e30]}},
+    "surface.albedo_scale=1e-300": {"surface": {"albedo_scale": 1e-300}},
+    "surface.tint=0": {"surface": {"tint": [0.0] * 3}},
+    "surface.size=1e30": {"surface": {"size": [1e30, 1e30]}},
+    "ambient.radiance=1e30": {"ambient": {"radiance": [1e30] * 3}},
+    "ambient.intensity=1e30": {"ambient": {"temperature": 6500.0, "intensity": 1e30}},
+}
+"""Values every range admits that make the captures independent of the projector: no light of it
+reaches the camera, every pixel clips, or noise drowns it."""
+
+
+@pytest.mark.parametrize("case", CONSTANT_CAPTURES)
+def test_captures_independent_of_the_projector_are_refused_with_the_contrast(tmp_path, capsys, case):
+    setup = tiny_setup_file(tmp_path, registration={"method": "exact"}, **CONSTANT_CAPTURES[case])
+    data = tmp_path / "data"
+    _refused(capsys, ["render", str(setup), "--out", str(data), *ARGS],
+             "setup 'tiny': the captures do not respond to the projector", "8-bit levels on average")
+    assert not (data / "tiny" / "meta.json").exists() and not (data / "tiny" / "setup.toml").exists()
+
+
+@pytest.mark.parametrize("projector", [{"aperture": 1e30}, {"aperture": 0.01, "focus_distance": 1e-300}],
+                         ids=["aperture=1e30", "focus_distance=1e-300"])
+def test_a_defocus_disk_wider_than_the_panel_is_refused_before_its_kernel(tmp_path, capsys, projector):
+    """The disk kernel's size grows as the square of its diameter: a disk of 1e16 pixels is
+    refused, naming the keys and the limit, before its kernel is made; the corrected setup renders
+    into the same folder."""
+    data = tmp_path / "data"
+    _refused(capsys, ["render", str(tiny_setup_file(tmp_path, projector=projector)), "--out", str(data), *ARGS],
+             f"projector.aperture = {projector['aperture']:g} m", "expected at most the panel's 64 pixels")
+    assert not (data / "tiny" / "setup.toml").exists()
+    assert main(["render", str(tiny_setup_file(tmp_path)), "--out", str(data), *ARGS]) == 0
 
 
 def test_output_root_that_is_a_file_is_refused(tmp_path, capsys):
@@ -213,6 +310,23 @@ def test_bench_sim_refuses_options_below_one(tmp_path, capsys, option):
     else:
         _refused(capsys, argv, f"{option[0]} 0", ">= 1")
     assert not (tmp_path / "bench").exists()
+
+
+@pytest.mark.parametrize("option", [["--ref-spp", str(10 ** 9)], ["--spp", str(2 ** 63)],
+                                    ["--repeats", str(2 ** 70)], ["--classes", "smooth,smooth"],
+                                    ["--classes", ","]])
+def test_bench_sim_refuses_huge_or_repeated_values_before_measuring(tmp_path, capsys, option):
+    argv = ["bench-sim", str(tiny_setup_file(tmp_path)), "--out", str(tmp_path / "bench"), "--quiet",
+            "--classes", "smooth", "--ref-spp", "4", "--spp", "1", "--window", "8", "--repeats", "1", *option]
+    expected = {"--ref-spp": "<= 65536", "--spp": "<= 65536", "--repeats": "<= 1000"}.get(option[0], "--classes")
+    _refused(capsys, argv, f"{option[0]} ", expected)
+    assert not (tmp_path / "bench").exists()
+
+
+def test_bench_sim_refuses_a_repeated_spp(capsys, tmp_path):
+    with pytest.raises(SystemExit) as exit_:  # an argparse type: usage and the value
+        main(["bench-sim", str(tiny_setup_file(tmp_path)), "--out", str(tmp_path / "bench"), "--spp", "4,4"])
+    assert exit_.value.code == 2 and "'4,4'" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("name, fragment", [("bogus", "not a Mitsuba variant"),
@@ -480,6 +594,20 @@ def test_ctrl_c_ends_with_a_line_not_a_traceback(tmp_path, capsys, monkeypatch):
     assert main(["render", str(tiny_setup_file(tmp_path)), "--out", str(tmp_path / "data"), *ARGS]) == 130
     err = capsys.readouterr().err
     assert "procam: interrupted" in err and "run the same command again" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("suite, only, fragment", [
+    (["a", "A"], None, 'setup[1].name = "A": expected a unique name (letter case aside)'),
+    (["a", "b"], "a,a", "--only a,a: a given twice"),
+    (["a", "b"], ",", "--only ',': expected one or more comma-separated setup names"),
+    (["a", "b"], "a,,b", "no setup named ''"),
+    (["a", "b"], "A", "no setup named 'A'"),
+], ids=["names a and A", "--only a,a", "--only ,", "--only a,,b", "--only A"])
+def test_suite_names_and_selections_are_checked(tmp_path, capsys, suite, only, fragment):
+    tiny_setup_file(tmp_path)
+    path = tmp_path / "suite.toml"
+    path.write_text('base = "tiny.toml"\n' + "".join(f'[[setup]]\nname = "{n}"\n' for n in suite))
+    _refused(capsys, ["render", str(path), "--list", *(["--only", only] if only else [])], fragment)
 
 
 def test_the_fix_a_failed_render_suggests_is_accepted(tmp_path, capsys):

@@ -36,6 +36,7 @@ from compensation.methods import METHODS, check_config, get_method
 from compensation.methods.base import Method, load_state, resolve_device
 from compensation.scores.metrics import evaluate, psnr_per_image
 from compensation.training.config import TrainConfig
+from sim.dataset import MAX_SIDE
 from sim.errors import DatasetError, ProcamError
 from sim.io import atomic_write, read_json, read_png, to_float, to_uint8, write_json, write_png
 from sim.layout import N_PLAIN, REF, capture_dir, image_name
@@ -336,9 +337,24 @@ def load_run(run_dir: str | Path, device: str = "auto") -> tuple[Method, dict]:
 
 
 def run_size(config: dict) -> tuple[int, int]:
-    """(width, height) in pixels of the images a run was trained on, from its ``config.json``."""
+    """(width, height) in pixels of the images a run was trained on, from its ``config.json``.
+
+    Raises
+    ------
+    KeyError
+        If ``image_size`` is missing.
+    ProcamError
+        If it is not an object whose ``width`` and ``height`` are integers from 1 to
+        :data:`~sim.dataset.MAX_SIDE` (the sizes a dataset is rendered at): checked before an
+        image is resized to it.
+    """
     size = config["image_size"]
-    return int(size["width"]), int(size["height"])
+    sides = (size.get("width"), size.get("height")) if isinstance(size, dict) else ()
+    if not sides or not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_SIDE
+                            for v in sides):
+        raise ProcamError(f"image_size = {size!r}: expected a width and height in pixels, each an "
+                          f"integer from 1 to {MAX_SIDE}")
+    return sides
 
 
 def load_checkpoint(path: str | Path, device: str = "auto") -> Method:

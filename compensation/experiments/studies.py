@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import fnmatch
 import itertools
+import math
 import re
 import tomllib
 from dataclasses import dataclass, field, fields, replace
@@ -67,6 +68,7 @@ from compensation.methods import applicable, get_method, make_config, option_own
 from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
 from sim.errors import ProcamError
+from sim.seeds import SEED_MAX
 from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
 from sim.setup.schema import SECTIONS
 
@@ -78,6 +80,9 @@ AXIS_KEYS = ("key", "values", "label", "unit")
 """Keys of an ``[[axis]]`` table."""
 TRAIN_AXIS_REFUSED = ("n_test", "seed", "device", "eval_batch")
 """Training options that cannot be an axis (seeds are their own list; the others change no score)."""
+MAX_RUNS = 10_000
+"""Most runs a study expands to (points × setups × seeds × methods × training sizes): each trains a
+method, so more would not finish; the limit is checked before the runs are listed."""
 
 
 @dataclass(frozen=True)
@@ -141,7 +146,14 @@ def _positive_ints(path: Path, key: str, value, allow_list: bool = True) -> tupl
     items = value if allow_list and isinstance(value, list) else [value]
     if not items or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in items):
         raise _error(path, key, value, "expected a positive integer" + (" or a list of them" if allow_list else ""))
+    _once(path, key, items)
     return tuple(items)
+
+
+def _once(path: Path, key: str, items: list) -> None:
+    """Refuse a list of the study file that names one item twice (one run, or row, twice)."""
+    if twice := sorted({repr(v) for v in items if items.count(v) > 1}):
+        raise _error(path, key, items, f"expected distinct values ({', '.join(twice)} given twice)")
 
 
 def _size(path: Path, value) -> tuple[int, int]:
@@ -233,10 +245,12 @@ def load_study(path: Path | str) -> Study:
             get_method(m)
         except ProcamError as exc:
             raise ProcamError(f"{path}: methods: {exc}") from None
+    _once(path, "methods", methods)
     seeds = data.get("seeds", [0])
     if (not isinstance(seeds, list) or not seeds
-            or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)):
-        raise _error(path, "seeds", seeds, "expected a non-empty list of integers >= 0")
+            or not all(isinstance(s, int) and not isinstance(s, bool) and 0 <= s <= SEED_MAX for s in seeds)):
+        raise _error(path, "seeds", seeds, f"expected a non-empty list of integers from 0 to {SEED_MAX}")
+    _once(path, "seeds", seeds)
     axes = data["axis"]
     if not isinstance(axes, list) or not 1 <= len(axes) <= 2:
         raise ProcamError(f"{path}: axis: expected one or two [[axis]] tables")
@@ -255,6 +269,7 @@ def load_study(path: Path | str) -> Study:
     only = data.get("only", [])
     if not isinstance(only, list) or not all(isinstance(o, str) and o.strip() for o in only):
         raise _error(path, "only", only, "expected a list of setup-name patterns or point numbers")
+    _once(path, "only", [o.strip() for o in only])
     try:
         target = TargetPolicy(data.get("target_policy", "global"), data.get("out_of_reach", DEFAULT_OUT_OF_REACH))
     except ProcamError as exc:
@@ -283,7 +298,7 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
     Raises
     ------
     ProcamError
-        If a method is unknown or a value is not positive.
+        If a method is unknown, a value is not positive, or ``seeds`` is above :data:`MAX_RUNS`.
     """
     given = {"size": size, "n_train": n_train, "n_test": n_test, "iters": iters, "seeds": seeds,
              "methods": methods, "only": only, "target_policy": target_policy, "out_of_reach": out_of_reach,
@@ -307,6 +322,8 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
     if n_test is not None:
         changes["n_test"] = n_test
     if seeds is not None:
+        if seeds > MAX_RUNS:  # before the list of seeds is made
+            raise ProcamError(f"--seeds {seeds}: expected at most {MAX_RUNS} (the most runs a study takes)")
         changes["seeds"] = tuple(range(seeds))
     if methods is not None:
         for m in methods:
@@ -384,14 +401,20 @@ def expand(study: Study) -> Plan:
     Raises
     ------
     ProcamError
-        If the base cannot be loaded, a point gives an invalid setup (named with the study file,
-        the point and its values), two points give one setup name, an option is not taken by any
-        of the study's methods, a training value is invalid, or ``--only`` selects nothing.
+        If the base cannot be loaded, the study has more than :data:`MAX_RUNS` runs, a point gives
+        an invalid setup (named with the study file, the point and its values), two points give
+        one setup name, an option is not taken by any of the study's methods, a training value is
+        invalid, or ``--only`` selects nothing.
     """
     try:
         bases = load_setups(base_path(study))
     except ProcamError as exc:
         raise ProcamError(f"{study.path}: base = {study.base!r}: {exc}") from None
+    count = (math.prod(len(a.values) for a in study.axes) * len(bases) * len(study.seeds) * len(study.methods)
+             * (1 if any(a.key == "n_train" for a in study.axes) else len(study.n_train)))
+    if count > MAX_RUNS:  # before the runs are listed
+        raise ProcamError(f"{study.path}: {count} runs (points x setups x seeds x methods x training sizes); "
+                          f"expected at most {MAX_RUNS}")
     used = set(COMMON).union(*(get_method(m).options.names() for m in study.methods))
     if unknown := sorted(set(study.options) - used):
         raise ProcamError(f"{study.path}: options.{unknown[0]}: not an option of any method of the study "
@@ -475,14 +498,20 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
         ``study`` and ``results`` (paths), ``jobs`` (runs), ``trained`` and ``reused`` (runs),
         ``failed`` and ``rows`` (rows of ``results.csv``: failed, and all), ``setups`` (rendered or
         found finished).
+
+    Raises
+    ------
+    ProcamError
+        Before anything is written: if the study does not expand (:func:`expand`) or its frames
+        cannot be held (:class:`~sim.dataset.FrameSpec`).
     """
     out = Path(out)
     executor = executor or LocalExecutor()
     plan = expand(study)
+    spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size)
     out.mkdir(parents=True, exist_ok=True)
     record = study_record(study, plan)
     write_study_record(out, {**record, "executor": executor.name})
-    spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size)
     outcome = execute(plan, out, out / "data", spec, Scoring(study.n_test, study.closed_loop, target=study.target), executor,
                       list(plan.setups), progress, study.raw)
     rows = result_rows(plan, outcome, out)

@@ -40,7 +40,7 @@ from torch import Tensor, nn
 from compensation.methods.base import (CHECKPOINT, FitResult, Method, load_weights, resolve_device,
                                        save_state, weights_file)
 from compensation.scores.losses import LOSSES, get_loss
-from compensation.training.config import Options, TrainConfig
+from compensation.training.config import MAX_ITERS, Options, TrainConfig
 from compensation.training.conv_grad import faster_backward
 from compensation.training.loop import CropSampler, fit_label, train_loop
 from sim.errors import ProcamError
@@ -288,7 +288,7 @@ class CompenNetOptions(Options):
     """Training options of CompenNet (with or without the surface branch): the paper's recipe."""
 
     iters: int = 1000
-    """Optimiser steps (>= 1; paper 1000)."""
+    """Optimiser steps (1 to :data:`~compensation.training.config.MAX_ITERS`; paper 1000)."""
     batch: int = 64
     """Training pairs per step (>= 1, at most the training pairs are used; paper 64)."""
     lr: float = 1e-3
@@ -334,10 +334,11 @@ class CompenNetOptions(Options):
     }
 
     def check(self) -> None:
-        self._positive_ints("iters", "batch", "lr_step")
+        self._positive_ints("iters", most=MAX_ITERS)
+        self._positive_ints("batch", "lr_step")
         for name in ("lr", "lr_gamma"):
-            self._require(name, getattr(self, name) > 0, "a positive number")
-        self._require("weight_decay", self.weight_decay >= 0, "a number >= 0")
+            self._number(name, positive=True)
+        self._number("weight_decay", positive=False)
         self._require("loss", self.loss in LOSSES, f"one of {', '.join(LOSSES)}")
         self._require("sampler", self.sampler in ("epoch", "random"), "'epoch' or 'random'")
         self._require("patch", isinstance(self.patch, int) and not isinstance(self.patch, bool)

@@ -42,7 +42,7 @@ from torch import Tensor, nn
 
 from compensation.methods.base import (CHECKPOINT, FitResult, Method, load_state, load_weights,
                                        resolve_device, save_state, weights_file)
-from compensation.training.config import Options, TrainConfig
+from compensation.training.config import MAX_ITERS, Options, TrainConfig
 from compensation.training.loop import fit_label, train_loop
 from sim.errors import ProcamError
 
@@ -336,8 +336,9 @@ class Pix2PixOptions(Options):
     """Training options of pix2pix (the published configuration; training is fp32)."""
 
     iters: int = 10000
-    """Iterations, each one discriminator and one generator step (>= 1; the CompenNet paper's
-    baseline: 10,000 at batch 1, 20 epochs of 500 pairs)."""
+    """Iterations, each one discriminator and one generator step (1 to
+    :data:`~compensation.training.config.MAX_ITERS`; the CompenNet paper's baseline: 10,000 at
+    batch 1, 20 epochs of 500 pairs)."""
     batch: int = 1
     """Training pairs per iteration (>= 1; published 1)."""
     lr: float = LR
@@ -351,9 +352,10 @@ class Pix2PixOptions(Options):
     profiles: ClassVar[dict[str, dict]] = PIX2PIX_PROFILES
 
     def check(self) -> None:
-        self._positive_ints("iters", "batch")
-        self._require("lr", self.lr > 0, "a positive number")
-        self._require("l1_weight", self.l1_weight >= 0, "a number >= 0")
+        self._positive_ints("iters", most=MAX_ITERS)
+        self._positive_ints("batch")
+        self._number("lr", positive=True)
+        self._number("l1_weight", positive=False)
 
 
 class Pix2PixMethod(Method):

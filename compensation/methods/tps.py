@@ -251,7 +251,7 @@ def fit_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOO
     smoothing : float
         λ ≥ 0 added to the kernel diagonal.
     workers : int or None
-        Worker processes; None uses one per usable core.
+        Worker processes; None uses one per usable core; never more than there are tasks.
     progress : bool
         Show a progress bar over pixels.
     desc : str
@@ -282,7 +282,7 @@ def fit_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOO
     chunk = max(1, _TASK_SIZE // (n + 4) ** 2)
     tasks = ((centres[s:s + chunk], values[s:s + chunk], smoothing, scale_invariant)
              for s in range(0, count, chunk))
-    workers = usable_cores() if workers is None else workers
+    workers = min(usable_cores() if workers is None else workers, -(-count // chunk))  # no idle worker
     coeffs = np.empty((count, n + 4, 3), np.float32)
     residual, degenerate, done = 0.0, 0, 0
     with tqdm(total=count, desc=desc, unit="px", disable=not progress) as bar:
@@ -350,8 +350,7 @@ class TPSOptions(Options):
     """Worker processes for the fit (>= 1); None: one per usable CPU core. Does not change results."""
 
     def check(self) -> None:
-        self._require("smoothing", isinstance(self.smoothing, (int, float)) and not isinstance(self.smoothing, bool)
-                      and 0 <= self.smoothing < float("inf"), "a finite number >= 0")
+        self._number("smoothing", positive=False)
         self._require("scale_invariant", isinstance(self.scale_invariant, bool), "true or false")
         self._positive_ints("workers")
 

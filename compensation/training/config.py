@@ -17,6 +17,12 @@ from functools import cache
 from typing import ClassVar
 
 from sim.errors import ProcamError
+from sim.options import FLOAT32_MAX, FLOAT32_TINY
+from sim.seeds import SEED_MAX
+
+MAX_ITERS = 10 ** 6
+"""Most iterations of a network method (the paper trains CompenNet for 1000, pix2pix for 10,000):
+the loss log is allocated with one row per iteration before training starts."""
 
 
 @dataclass(frozen=True)
@@ -43,12 +49,27 @@ class Options:
         if not ok:
             raise ProcamError(f"option {name} = {getattr(self, name)!r}: expected {expected}")
 
-    def _positive_ints(self, *names: str) -> None:
-        """Check that each named field is an integer >= 1 (None allowed where typed optional)."""
+    def _positive_ints(self, *names: str, most: int | None = None) -> None:
+        """Check that each named field is an integer >= 1 (None allowed where typed optional), and
+        at most ``most`` where given."""
         for name in names:
             value = getattr(self, name)
             self._require(name, value is None or (isinstance(value, int) and not isinstance(value, bool)
                                                   and value >= 1), "a positive integer")
+            if most is not None and value is not None:
+                self._require(name, value <= most, f"a positive integer, at most {most}")
+
+    def _number(self, name: str, positive: bool) -> None:
+        """Check that the named field is a number > 0 (``positive``) or >= 0 that float32, in
+        which training computes, holds: at most :data:`~sim.options.FLOAT32_MAX`, and 0 or at
+        least :data:`~sim.options.FLOAT32_TINY` (float32 rounds a smaller one towards 0)."""
+        value = getattr(self, name)
+        expected = "a positive number" if positive else "a number >= 0"
+        self._require(name, isinstance(value, (int, float)) and not isinstance(value, bool)
+                      and (value > 0 if positive else value >= 0), expected)
+        self._require(name, value <= FLOAT32_MAX and (value == 0 or value >= FLOAT32_TINY),
+                      f"{'a number' if positive else '0 or a number'} from {FLOAT32_TINY:.3g} to "
+                      f"{FLOAT32_MAX:.3g} (training computes in float32)")
 
     def label(self) -> str:
         """What a table names beside the method when its rows could differ in these options (e.g.
@@ -100,7 +121,7 @@ class TrainConfig:
     """Use the first n test pairs (>= 1); not given on the command line, the profile's count
     (quick 100, paper 200); None in a configuration uses all of them."""
     seed: int = 0
-    """Seeds initialisation, batch order and any sampling of the method (paper 0)."""
+    """Seeds initialisation, batch order and any sampling of the method (0 to 2³²−1; paper 0)."""
     device: str = "auto"
     """``auto`` (CUDA if available, else CPU), ``cpu`` or ``cuda[:N]``."""
     eval_batch: int = 64
@@ -116,8 +137,8 @@ class TrainConfig:
             value = getattr(self, key)
             if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
                 raise ProcamError(f"{key} = {value!r}: expected a positive integer")
-        if not isinstance(self.seed, int) or self.seed < 0:
-            raise ProcamError(f"seed = {self.seed!r}: expected an integer >= 0")
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed <= SEED_MAX:
+            raise ProcamError(f"seed = {self.seed!r}: expected an integer from 0 to {SEED_MAX}")
 
     def to_dict(self) -> dict:
         """Every value, the options as a nested mapping (what ``config.json`` records)."""
@@ -138,7 +159,7 @@ def field_docs(cls: type) -> dict[str, str]:
     Examples
     --------
     >>> field_docs(TrainConfig)["seed"]
-    'Seeds initialisation, batch order and any sampling of the method (paper 0).'
+    'Seeds initialisation, batch order and any sampling of the method (0 to 2³²−1; paper 0).'
     >>> field_docs(TrainConfig)["options"]
     "The method's options (an instance of its options class; the registry's make_config builds the right one by method name)."
     """

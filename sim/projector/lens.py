@@ -148,6 +148,12 @@ def lens_for(setup: Any) -> Lens:
         when the surface lies in focus everywhere (a plane at the focus distance, head-on). Its
         :attr:`~Lens.surface_pitch` is the panel pixel's width where the optical axis meets the
         surface.
+
+    Raises
+    ------
+    ProcamError
+        If a defocus disk is wider than the panel (checked before its kernel is made), or the
+        padding does not settle.
     """
     p = setup.projector
     w, h = p.resolution
@@ -166,7 +172,14 @@ def lens_for(setup: Any) -> Lens:
         fill = float(np.median(depth[hit])) if hit.any() else p.focus_distance
         diameters = defocus_blur_diameter_px(
             p.aperture, p.focus_distance, np.where(hit, depth, fill), p.fov, w)
-        need = reach + disk_radius(float(diameters.max()))
+        widest = float(diameters.max())
+        if not widest <= max(w, h):  # before its disk kernel is made: its size grows as the square
+            raise ProcamError(f"setup {setup.name!r}: projector.aperture = {p.aperture:g} m focused at "
+                              f"projector.focus_distance = {p.focus_distance:g} m blurs a pixel over a "
+                              f"disk of {widest:.3g} projector pixels; expected at most the panel's "
+                              f"{max(w, h)} pixels (a smaller aperture, or a focus distance nearer the "
+                              "surface's)")
+        need = reach + disk_radius(widest)
         if need <= pad:
             break
         pad = need

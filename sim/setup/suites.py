@@ -115,10 +115,10 @@ def _suite(suite: Mapping, path: Path) -> list[Setup]:
         if "name" not in entry:
             raise SetupError(f"{source}: {prefix}name: missing; expected a string matching {NAME_PATTERN}")
         setup = parse_setup(merge_setup(base_data, entry), source, path.parent, prefix)
-        if setup.name in seen:
-            raise SetupError(f'{source}: {prefix}name = "{setup.name}": expected a unique name; '
-                             f"setup[{seen[setup.name]}] has it too")
-        seen[setup.name] = i
+        if setup.name.lower() in seen:  # one folder on a case-insensitive file system
+            raise SetupError(f'{source}: {prefix}name = "{setup.name}": expected a unique name (letter case '
+                             f"aside); setup[{seen[setup.name.lower()]}] has it too")
+        seen[setup.name.lower()] = i
         setups.append(setup)
     return setups
 
@@ -138,7 +138,8 @@ def select_setups(setups: list[Setup], only: str | None, source: str) -> list[Se
     Raises
     ------
     SetupError
-        If a name is empty or not a setup of the suite; the message lists the valid names.
+        If a name is empty, not a setup of the suite (the message lists the valid names) or given
+        twice.
     """
     if only is None:
         return setups
@@ -150,6 +151,8 @@ def select_setups(setups: list[Setup], only: str | None, source: str) -> list[Se
     if unknown:
         raise SetupError(f"--only {only}: no setup named {', '.join(repr(n) for n in unknown)} in "
                          f"{source}; its setups: {', '.join(valid)}")
+    if twice := sorted({n for n in names if names.count(n) > 1}):
+        raise SetupError(f"--only {only}: {', '.join(twice)} given twice; expected each setup once")
     return [s for s in setups if s.name in names]
 
 
