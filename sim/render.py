@@ -42,6 +42,28 @@ def _ambient_key(setup: Setup, fidelity: str, variant: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def _render(*args, **kwargs) -> np.ndarray:
+    """``mi.render(*args, **kwargs)`` as a float32 array.
+
+    Raises
+    ------
+    KeyboardInterrupt
+        On Ctrl-C during the render, which Dr.Jit reports as a ``RuntimeError`` raised from the
+        interrupt: a study would take that for a failed render and go on.
+    """
+    import mitsuba as mi
+
+    try:
+        return np.array(mi.render(*args, **kwargs), dtype=np.float32)
+    except RuntimeError as exc:
+        cause = exc
+        while cause is not None and not isinstance(cause, KeyboardInterrupt):
+            cause = cause.__cause__ or cause.__context__
+        if cause is not None:
+            raise KeyboardInterrupt from None
+        raise
+
+
 class Renderer:
     """Renders linear radiance (camera resolution, RGB float32) of one setup.
 
@@ -117,7 +139,7 @@ class Renderer:
         use_variant(self.variant)
         self._params[_TEXTURE] = mi.TensorXf(np.ascontiguousarray(irradiance, dtype=np.float32))
         self._params.update()
-        return np.array(mi.render(self._scene, self._params, seed=int(seed)), dtype=np.float32)
+        return _render(self._scene, self._params, seed=int(seed))
 
     def ambient_radiance(self) -> np.ndarray:
         """Radiance due to the ambient light alone (rendered once, at ``render.ambient_spp``; a
@@ -138,7 +160,7 @@ class Renderer:
                 sc = mi.load_dict(scene.ambient_scene(self.setup, self.albedo, self.fidelity,
                                                       self.setup.render.ambient_spp))
                 seed = seeds.mitsuba_seed(self.setup.render.seed, seeds.AMBIENT, 0)
-                self._ambient = np.array(mi.render(sc, seed=seed), dtype=np.float32)
+                self._ambient = _render(sc, seed=seed)
                 _ambient_memo[key] = self._ambient
                 while len(_ambient_memo) > AMBIENT_MEMO_SIZE:
                     _ambient_memo.popitem(last=False)

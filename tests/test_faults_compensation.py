@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import failing_study_file, tiny_toml
+from helpers import failing_study_file, interrupted_render, tiny_toml
 from compensation.cli import main
 from compensation.methods import METHODS, make_config
 from compensation.methods.tps import fit_splines
@@ -388,3 +388,17 @@ def runs(tmp_path_factory) -> Path:
     for method, extra in (("nayar", []), ("tps", []), ("compennet", ["--iters", "2", "--batch", "4"])):
         assert main(["train", str(setup), "--method", method, *extra, "--out", str(tmp / method), *TRAIN]) == 0
     return tmp
+
+
+def test_ctrl_c_inside_a_render_job_stops_the_study(tmp_path, capsys, monkeypatch):
+    """Dr.Jit reports Ctrl-C inside a render as a RuntimeError: the study stops (status 130) instead
+    of recording a failed render and going on."""
+    import mitsuba as mi
+
+    study = failing_study_file(tmp_path)
+    (tmp_path / "base.toml").write_text(tiny_toml("base", 16, registration={"method": "exact"}))
+    monkeypatch.setattr(mi, "render", interrupted_render)
+    assert main(["study", str(study), "--out", str(tmp_path / "out"), "--quiet"]) == 130
+    err = capsys.readouterr().err
+    assert "procam: interrupted" in err and "Traceback" not in err
+    assert not (tmp_path / "out" / "results.csv").exists()

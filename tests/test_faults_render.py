@@ -17,7 +17,7 @@ import pytest
 
 from compensation.cli import main
 from helpers import TINY_RENDER as ARGS
-from helpers import tiny_setup_file, tiny_toml
+from helpers import interrupted_render, tiny_setup_file, tiny_toml
 from sim import camera, registration
 from sim.errors import ProcamError
 from sim.io import read_png, write_png
@@ -594,6 +594,52 @@ def test_ctrl_c_ends_with_a_line_not_a_traceback(tmp_path, capsys, monkeypatch):
     assert main(["render", str(tiny_setup_file(tmp_path)), "--out", str(tmp_path / "data"), *ARGS]) == 130
     err = capsys.readouterr().err
     assert "procam: interrupted" in err and "run the same command again" in err and "Traceback" not in err
+
+
+def test_ctrl_c_inside_a_mitsuba_render_ends_with_a_line(tmp_path, capsys, monkeypatch):
+    import mitsuba as mi
+
+    monkeypatch.setattr(mi, "render", interrupted_render)
+    assert main(["render", str(tiny_setup_file(tmp_path)), "--out", str(tmp_path / "data"), *ARGS]) == 130
+    err = capsys.readouterr().err
+    assert "procam: interrupted" in err and "Traceback" not in err and "RuntimeError" not in err
+
+
+INTERRUPTER = """
+import itertools, os, signal, sys
+from pathlib import Path
+import sim.io
+
+pattern, nth, argv = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
+write, calls = sim.io.atomic_write, itertools.count(1)
+
+def atomic_write(path, data):
+    if Path(path).match(pattern) and next(calls) == nth:  # Ctrl-C before writing this file
+        os.kill(os.getpid(), signal.SIGINT)
+    write(path, data)
+
+sim.io.atomic_write = atomic_write
+from compensation.cli import main
+sys.exit(main(argv))
+"""
+"""Run ``procam`` and send it Ctrl-C (SIGINT) as it writes the ``nth`` file matching ``pattern``
+(captures are written by worker threads: Python raises it in the main thread, wherever that is,
+often inside a render)."""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", ["render", "study"])
+def test_ctrl_c_during_render_and_study_prints_no_traceback(tmp_path, command):
+    setup = tiny_setup_file(tmp_path, registration={"method": "exact"})
+    (tmp_path / "s.toml").write_text('base = "tiny.toml"\nmethods = ["tps"]\nn_train = 2\nn_test = 1\n'
+                                     'size = 16\n[[axis]]\nkey = "ambient.radiance"\nvalues = [0.02, 0.1]\n')
+    argv = {"render": ["render", str(setup), "--out", str(tmp_path / "data"), *ARGS],
+            "study": ["study", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out"), "--quiet"]}[command]
+    proc = subprocess.run([sys.executable, "-c", INTERRUPTER, "*/cam/warp/train/img_*.png", "2", *argv],
+                          env=_env(), capture_output=True, text=True)
+    assert proc.returncode == 130, proc.stderr
+    assert "procam: interrupted" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "out" / "results.csv").exists()  # a study stops: no job is taken for failed
 
 
 @pytest.mark.parametrize("suite, only, fragment", [
