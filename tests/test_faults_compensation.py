@@ -3,6 +3,7 @@ file, key or value named, no traceback, nothing written); killed benches resume 
 stale runs are not reused; files respect the umask."""
 from __future__ import annotations
 
+import csv
 import json
 import os
 import shutil
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import failing_study_file, interrupted_render, tiny_toml
+from helpers import csv_rows, failing_study_file, interrupted_render, tiny_toml
 from compensation.cli import main
 from compensation.methods import METHODS, make_config
 from compensation.methods.tps import fit_splines
@@ -379,6 +380,97 @@ def test_bench_selections_given_twice_are_refused(tmp_path, capsys, option, expe
 
 
 @pytest.fixture(scope="module")
+def failed_study(tmp_path_factory) -> Path:
+    """The folder of a study whose every render was refused (:func:`helpers.failing_study_file`)."""
+    tmp = tmp_path_factory.mktemp("failed")
+    assert main(["study", str(failing_study_file(tmp)), "--out", str(tmp / "out"), "--quiet"]) == 0
+    return tmp / "out"
+
+
+def test_a_study_whose_every_job_failed_reports_and_compares(failed_study, tmp_path, capsys):
+    a, b = tmp_path / "a", tmp_path / "b"
+    shutil.copytree(failed_study, a)
+    shutil.copytree(failed_study, b)
+    rows = csv_rows(a / "results.csv")
+    assert len(rows) == 2 and all(r["status"] == "failed" and "do not respond" in r["error"] for r in rows)
+    assert main(["report", str(a)]) == 0
+    assert "do not respond to the projector" in (a / "report.html").read_text()
+    assert len(csv_rows(a / "failures.csv")) == 2 and (a / "charts").is_dir()
+    assert main(["compare", str(a), str(b)]) == 0
+    assert sorted(p.name for p in (a / "compare-b").iterdir()) == ["compare.csv", "compare.md"]
+    assert "Traceback" not in capsys.readouterr().err
+
+
+DAMAGES = {"not UTF-8": "caf\xe9,\xff\n".encode("latin-1"), "cut short": None, "empty": b"",
+           "binary": bytes(range(256))}
+"""Ways a record is damaged: another encoding, cut half-way, emptied, overwritten with bytes."""
+
+
+@pytest.mark.parametrize("command", ["report", "compare A B", "compare B A"])
+@pytest.mark.parametrize("damage", DAMAGES)
+@pytest.mark.parametrize("name", ["results.csv", "per_image.csv", "study.json"])
+def test_a_damaged_record_is_named(failed_study, tmp_path, capsys, name, damage, command):
+    a, b = tmp_path / "a", tmp_path / "b"
+    shutil.copytree(failed_study, a)
+    shutil.copytree(failed_study, b)
+    data = (a / name).read_bytes()
+    (a / name).write_bytes(data[:len(data) // 2] if DAMAGES[damage] is None else DAMAGES[damage])
+    argv = {"report": ["report", str(a)], "compare A B": ["compare", str(a), str(b)],
+            "compare B A": ["compare", str(b), str(a)]}[command]
+    _fails(capsys, argv, str(a / name))
+
+
+@pytest.mark.parametrize("key, value", [("name", [1]), ("question", [1]), ("kind", 3), ("target", "x"),
+                                        ("setups", [1]), ("versions", "x")])
+def test_a_study_record_of_the_wrong_shape_is_named(failed_study, tmp_path, capsys, key, value):
+    out = tmp_path / "out"
+    shutil.copytree(failed_study, out)
+    record = json.loads((out / "study.json").read_text())
+    (out / "study.json").write_text(json.dumps({**record, key: value}))
+    _fails(capsys, ["report", str(out)], str(out / "study.json"), f"'{key}' = ")
+
+
+def test_a_score_that_is_not_a_number_is_named(failed_study, tmp_path, capsys):
+    out = tmp_path / "out"
+    shutil.copytree(failed_study, out)
+    rows = csv_rows(out / "results.csv")
+    rows[0]["psnr"] = "abc"
+    with open(out / "results.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    _fails(capsys, ["report", str(out)], str(out / "results.csv"), "line 2: column psnr: expected a number")
+
+
+GOOD_PER_SETUP = "table,setup,method,n_train,PSNR,RMSE,SSIM,deltaE,train s\n1,synth,tps,8,20,0.1,0.7,5,1.0\n"
+BENCH_DAMAGES = {
+    "per_setup.csv not UTF-8": ("{}", "table,setup\n1,caf\xe9\n", None, "per_setup.csv"),
+    "per_setup.csv cut short": ("{}", GOOD_PER_SETUP[:-20], None, "per_setup.csv"),
+    "per_setup.csv without columns": ("{}", "table\n1\n", None, "per_setup.csv"),
+    "per_setup.csv n_train text": ("{}", GOOD_PER_SETUP.replace(",8,", ",x,"), None, "bench"),
+    "bench.json a list": ("[]", GOOD_PER_SETUP, None, "bench.json"),
+    "bench.json config a list": ('{"config": []}', GOOD_PER_SETUP, None, "bench"),
+    "failures.json without setup": ("{}", GOOD_PER_SETUP, '{"failures": [{"table": "1"}]}', "bench"),
+    "failures.json a number": ("{}", GOOD_PER_SETUP, '{"failures": 3}', "bench"),
+    "failures.json not UTF-8": ("{}", GOOD_PER_SETUP, '{"failures": "caf\xe9"}', "failures.json"),
+}
+"""Damaged records of a bench folder written before results.csv: bench.json, per_setup.csv and
+failures.json, and what the refusal names."""
+
+
+@pytest.mark.parametrize("case", BENCH_DAMAGES)
+def test_a_damaged_bench_record_is_named(tmp_path, capsys, case):
+    bench, per_setup, failures, named = BENCH_DAMAGES[case]
+    folder = tmp_path / "bench"
+    folder.mkdir()
+    (folder / "bench.json").write_bytes(bench.encode("latin-1"))
+    (folder / "per_setup.csv").write_bytes(per_setup.encode("latin-1"))
+    if failures is not None:
+        (folder / "failures.json").write_bytes(failures.encode("latin-1"))
+    _fails(capsys, ["report", str(folder)], str(folder) if named == "bench" else str(folder / named))
+
+
+@pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> Path:
     """Runs of nayar, tps and CompenNet (2 iterations) on a synthetic dataset of their own."""
     from synthetic import make_dataset
@@ -388,6 +480,19 @@ def runs(tmp_path_factory) -> Path:
     for method, extra in (("nayar", []), ("tps", []), ("compennet", ["--iters", "2", "--batch", "4"])):
         assert main(["train", str(setup), "--method", method, *extra, "--out", str(tmp / method), *TRAIN]) == 0
     return tmp
+
+
+@pytest.mark.parametrize("damage", ["text", "cut short", "empty"])
+@pytest.mark.parametrize("file", ["nayar/nayar.npz", "tps/tps.npz", "compennet/model.pt", "tps/config.json"])
+def test_a_damaged_run_file_is_named(runs, tmp_path, capsys, file, damage):
+    run = tmp_path / file.split("/")[0]
+    shutil.copytree(runs / run.name, run)
+    data = (tmp_path / file).read_bytes()
+    (tmp_path / file).write_bytes({"text": b"garbage", "cut short": data[:len(data) // 2], "empty": b""}[damage])
+    write_png(tmp_path / "y.png", np.full((32, 32, 3), 100, np.uint8))
+    _fails(capsys, ["compensate", str(run), str(tmp_path / "y.png"), "--out", str(tmp_path / "f.png")],
+           str(tmp_path / file))
+    assert not (tmp_path / "f.png").exists()
 
 
 def test_ctrl_c_inside_a_render_job_stops_the_study(tmp_path, capsys, monkeypatch):

@@ -33,7 +33,7 @@ from compensation.experiments.closed_loop import CAPTURES_DIR
 from compensation.reports.summary import (CONFIDENCE, BREAK_GAIN_DB, ORACLE_MARGIN_DB, is_finite, cell_text,
                                              order_key, axis_keys, attach_per_image, break_columns,
                                              breakpoints, failure_columns, failures, read_results,
-                                             main_rows, read_study, summarize,
+                                             main_rows, read_study, summarize, table_text,
                                              write_summaries)
 from sim.errors import DatasetError, ProcamError
 from sim.io import atomic_write, read_json, read_png, write_text
@@ -56,8 +56,18 @@ def _bench_rows(folder: Path) -> tuple[dict, list[dict]]:
     rows (one point, no axis), the timings and run folders from ``runs/<setup>/<method>-n<N>``,
     the uncompensated closed loop and the oracle from ``bench.json``."""
     bench = read_json(folder / "bench.json", "bench record")
-    with open(folder / "per_setup.csv", newline="") as f:
-        table = list(csv.DictReader(f))
+    table = list(csv.DictReader(io.StringIO(table_text(folder / "per_setup.csv", "bench table"))))
+    if table and (missing := [c for c in ("table", "setup", "method", "n_train") if c not in table[0]]):
+        raise ProcamError(f"{folder / 'per_setup.csv'}: missing column(s) {', '.join(missing)}")
+    try:
+        return _bench_record(folder, bench, table)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise ProcamError(f"{folder}: bench.json, per_setup.csv or failures.json is not as procam writes "
+                          f"it ({type(exc).__name__}: {exc})") from None
+
+
+def _bench_record(folder: Path, bench: dict, table: list[dict]) -> tuple[dict, list[dict]]:
+    """The study and rows of :func:`_bench_rows` from its bench record and ``per_setup.csv`` rows."""
     cfg = bench.get("config", {})
     rows = []
     for r in table:

@@ -93,13 +93,19 @@ def axis_keys(study: dict) -> list[str]:
     return [a["key"] for a in study.get("axes", [])]
 
 
+STUDY_TYPES = {"name": str, "question": str, "kind": str, "target": dict, "setups": dict,
+                "versions": dict}
+"""Keys of ``study.json`` the readers use besides ``axes``, and the type each holds where given."""
+
+
 def read_study(folder: Path) -> dict:
     """``folder/study.json``, checked for what the readers use (``axes`` with ``key`` and ``values``).
 
     Raises
     ------
     ProcamError
-        If the file is missing or unreadable, or an axis lacks its key or values.
+        If the file is missing or unreadable, an axis lacks its key or values, or a key of
+        :data:`STUDY_TYPES` holds another type.
     """
     path = Path(folder) / "study.json"
     study = read_json(path, "study description")
@@ -107,7 +113,31 @@ def read_study(folder: Path) -> dict:
     if not isinstance(axes, list) or not all(isinstance(a, dict) and "key" in a and isinstance(
             a.get("values"), list) for a in axes):
         raise ProcamError(f"{path}: 'axes' must be a list of {{key, values, ...}} tables")
+    for key, kind in STUDY_TYPES.items():
+        if study.get(key) is not None and not isinstance(study[key], kind):
+            raise ProcamError(f"{path}: {key!r} = {study[key]!r}: expected a JSON "
+                              f"{'object' if kind is dict else 'string'}")
     return study
+
+
+def table_text(path: Path, what: str) -> str:
+    """The text of a CSV table procam wrote (``what`` names it in messages).
+
+    Raises
+    ------
+    ProcamError
+        If the file is missing, not UTF-8 or cut short (its last line unfinished).
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ProcamError(f"{path}: {what} not found") from None
+    except UnicodeDecodeError as exc:
+        raise ProcamError(f"{path}: not a {what} (not UTF-8 text: byte {exc.start})") from None
+    if text and not text.endswith("\n"):  # every row procam writes ends its line
+        raise ProcamError(f"{path}: cut short (its last line is unfinished); run the study or bench "
+                          "again to write it whole")
+    return text
 
 
 def read_results(path: Path, axes: list[str]) -> list[dict]:
@@ -119,20 +149,11 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
     ProcamError
         If the file is missing, not UTF-8 or cut short (its last line unfinished), or a required
         column or axis column is absent, or a row has more or fewer cells than the header, or a cell of
-        ``point``, ``n_train``, ``seed`` is not an integer, or a ``status`` is unknown; the message
-        names the file, the row and the column.
+        ``point``, ``n_train``, ``seed`` is not an integer or of a score not a number, or a
+        ``status`` is unknown; the message names the file, the row and the column.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ProcamError(f"{path}: results table not found") from None
-    except UnicodeDecodeError as exc:
-        raise ProcamError(f"{path}: not a results table (not UTF-8 text: byte {exc.start})") from None
-    if text and not text.endswith("\n"):  # every row procam writes ends its line
-        raise ProcamError(f"{path}: cut short (its last line is unfinished); run the study or bench "
-                          "again to write it whole")
-    reader = csv.DictReader(io.StringIO(text))
+    reader = csv.DictReader(io.StringIO(table_text(path, "results table")))
     header = reader.fieldnames or []
     missing = [c for c in ("point", *axes, "setup", "method", "n_train", "seed", "status") if c not in header]
     if missing:
@@ -152,7 +173,11 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
         if row["status"] not in STATUSES:
             raise ProcamError(f"{path}, line {line}: status {row['status']!r}: expected one of "
                               f"{', '.join(STATUSES)}")
-        for key in (*SCORES, *(a for a in axes if a not in ("point", "n_train", "seed"))):
+        for key in SCORES:
+            row[key] = _number(raw.get(key) or "")
+            if isinstance(row[key], str):
+                raise ProcamError(f"{path}, line {line}: column {key}: expected a number, found {row[key]!r}")
+        for key in (a for a in axes if a not in ("point", "n_train", "seed", *SCORES)):
             row[key] = _number(raw.get(key) or "")
         for key in ("error", "run", "table", "variant", "target_policy"):
             row[key] = raw.get(key) or ""
@@ -175,12 +200,13 @@ def attach_per_image(rows: list[dict], path: Path) -> list[dict]:
     Raises
     ------
     ProcamError
-        If the file lacks a column it is joined by, or a score cell is not a number.
+        If the file is not UTF-8 or cut short, lacks a column it is joined by, or a score cell is
+        not a number.
     """
     path = Path(path)
     if not path.is_file():
         return rows
-    reader = csv.DictReader(io.StringIO(path.read_text()))
+    reader = csv.DictReader(io.StringIO(table_text(path, "per-image table")))
     missing = [c for c in ("point", "setup", "method", "n_train", "seed", "image")
                if c not in (reader.fieldnames or [])]
     if missing:
