@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from helpers import tiny_toml
+from compensation.experiments import executors
 from compensation.experiments.bench import BenchConfig, run_bench
 from compensation.experiments.executors import LocalExecutor, Task, attempt, make_executor
 from compensation.reports.tables import write_tables
@@ -84,7 +85,8 @@ def test_ray_bench_equals_local(tmp_path):
     assert all((tmp_path / "ray" / r["run"] / "closed_loop" / "img_0002.png").exists() for r in rows)
 
 
-@pytest.mark.parametrize("kind", ["closed port", "ray:// closed port", "unknown host", "malformed"])
+@pytest.mark.parametrize("kind", ["closed port", "ray:// closed port", "unknown host", "malformed",
+                                  "port above 65535", "port 0", "no host"])
 def test_an_unreachable_ray_address_is_refused_at_once(kind, monkeypatch):
     """An address nothing listens at is refused with the address named, before Ray's own minutes of
     retries (the probe is a TCP connection with a timeout); Ray is never initialised."""
@@ -97,7 +99,40 @@ def test_an_unreachable_ray_address_is_refused_at_once(kind, monkeypatch):
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     address = {"closed port": f"127.0.0.1:{port}", "ray:// closed port": f"ray://127.0.0.1:{port}",
-               "unknown host": "no-such-host.invalid:6379", "malformed": "127.0.0.1"}[kind]
+               "unknown host": "no-such-host.invalid:6379", "malformed": "127.0.0.1",
+               "port above 65535": "127.0.0.1:99999", "port 0": "127.0.0.1:0", "no host": ":6379"}[kind]
     monkeypatch.setattr(ray, "init", lambda *a, **k: pytest.fail("ray.init called"))
     with pytest.raises(ProcamError, match=f"--address {address}: "):
         make_executor("ray", address)
+
+
+@pytest.mark.parametrize("reply", [b"", b"HTTP/1.1 400 Bad Request\r\n\r\n"], ids=["silent", "HTTP/1.1"])
+def test_an_address_where_no_ray_cluster_answers_is_refused_in_time(reply, monkeypatch):
+    """A server that accepts the connection but does not answer as Ray's gRPC servers do (Ray itself
+    would wait minutes on it) is refused once the timeout passes; Ray is never initialised."""
+    import socket
+    import threading
+
+    pytest.importorskip("ray")
+    import ray
+
+    monkeypatch.setattr(ray, "init", lambda *a, **k: pytest.fail("ray.init called"))
+    monkeypatch.setattr(executors, "CONNECT_TIMEOUT_S", 0.5)
+    done = threading.Event()
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+
+        def answer():
+            connection, _ = server.accept()
+            with connection:
+                connection.recv(64)
+                connection.sendall(reply)
+                done.wait(10)
+
+        threading.Thread(target=answer, daemon=True).start()
+        address = f"127.0.0.1:{server.getsockname()[1]}"
+        with pytest.raises(ProcamError, match=f"--address {address}: a server listens there but does not answer "
+                                              "as a Ray cluster"):
+            make_executor("ray", address)
+        done.set()

@@ -507,3 +507,10 @@ def test_ctrl_c_inside_a_render_job_stops_the_study(tmp_path, capsys, monkeypatc
     err = capsys.readouterr().err
     assert "procam: interrupted" in err and "Traceback" not in err
     assert not (tmp_path / "out" / "results.csv").exists()
+
+
+def test_an_unreachable_ray_cluster_is_refused_before_anything_is_written(tmp_path, capsys):
+    pytest.importorskip("ray")
+    _fails(capsys, ["study", str(failing_study_file(tmp_path)), "--out", str(tmp_path / "out"),
+                    "--executor", "ray", "--address", "bogus.invalid:1234"], "--address bogus.invalid:1234")
+    assert not (tmp_path / "out").exists()

@@ -135,27 +135,45 @@ CONNECT_TIMEOUT_S = 10.0
 retries an unreachable address for minutes)."""
 
 
+HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes(3) + b"\x04" + bytes(5)
+"""An HTTP/2 client's first bytes: the connection preface, then an empty SETTINGS frame. A gRPC
+server (Ray's GCS and its client server) answers with a frame of its own, a SETTINGS frame
+(type 4, the frame header's fourth byte)."""
+
+
 def _check_reachable(address: str | None) -> None:
-    """Refuse, within :data:`CONNECT_TIMEOUT_S`, a ``host:port`` or ``ray://host:port`` address
-    that accepts no TCP connection (None and ``auto`` are left to Ray: a local lookup).
+    """Refuse, within :data:`CONNECT_TIMEOUT_S` for each step, a ``host:port`` or
+    ``ray://host:port`` address that accepts no TCP connection, or whose server does not answer
+    :data:`HTTP2_PREFACE` as a gRPC server does (Ray itself waits for minutes on a port where
+    another program listens); None and ``auto`` are left to Ray: a local lookup.
 
     Raises
     ------
     ProcamError
-        If the address is malformed or nothing listens there.
+        If the address is malformed, nothing listens there, or what listens is not a Ray cluster.
     """
     if address in (None, "auto", "local"):
         return
     target = address.split("://", 1)[1] if "://" in address else address
     host, _, port = target.rpartition(":")
-    if not host or not port.isdigit():
-        raise ProcamError(f"--address {address}: expected auto, HOST:PORT or ray://HOST:PORT")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ProcamError(f"--address {address}: expected auto, HOST:PORT or ray://HOST:PORT (a port "
+                          "from 1 to 65535)")
     try:
-        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S).close()
+        with socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S) as connection:
+            try:
+                connection.sendall(HTTP2_PREFACE)
+                answer = connection.recv(9)
+            except OSError:
+                answer = b""
     except OSError as exc:
         raise ProcamError(f"--address {address}: cannot connect to a Ray cluster there within "
                           f"{CONNECT_TIMEOUT_S:g} s ({exc}); start one with 'ray start --head' or "
                           "check the address") from None
+    if answer[3:4] != b"\x04":
+        raise ProcamError(f"--address {address}: a server listens there but does not answer as a Ray "
+                          f"cluster (gRPC) within {CONNECT_TIMEOUT_S:g} s; check the address and port "
+                          "(ray start --head prints them)")
 
 
 class RayExecutor:
