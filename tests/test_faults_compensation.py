@@ -372,7 +372,8 @@ def test_a_repeated_count_is_an_argument_error(tmp_path, capsys, argv):
 
 @pytest.mark.parametrize("option, expected", [(["--methods", "tps,tps"], "tps given twice"),
                                               (["--tables", "1,1"], "--tables '1,1': 1 given twice"),
-                                              (["--only", "ideal,ideal"], "--only ideal,ideal: ideal given twice")])
+                                              (["--only", "ideal,ideal"], "--only ideal,ideal: ideal given twice")],
+                         ids=["--methods tps,tps", "--tables 1,1", "--only ideal,ideal"])
 def test_bench_selections_given_twice_are_refused(tmp_path, capsys, option, expected):
     _fails(capsys, ["bench", "ideal", "--out", str(tmp_path / "b"), "--methods", "tps", "--tables", "1",
                     *option], expected)
@@ -421,7 +422,7 @@ def test_a_damaged_record_is_named(failed_study, tmp_path, capsys, name, damage,
 
 
 @pytest.mark.parametrize("key, value", [("name", [1]), ("question", [1]), ("kind", 3), ("target", "x"),
-                                        ("setups", [1]), ("versions", "x")])
+                                        ("setups", [1]), ("versions", "x")], ids=lambda v: json.dumps(v))
 def test_a_study_record_of_the_wrong_shape_is_named(failed_study, tmp_path, capsys, key, value):
     out = tmp_path / "out"
     shutil.copytree(failed_study, out)

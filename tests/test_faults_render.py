@@ -314,7 +314,7 @@ def test_bench_sim_refuses_options_below_one(tmp_path, capsys, option):
 
 @pytest.mark.parametrize("option", [["--ref-spp", str(10 ** 9)], ["--spp", str(2 ** 63)],
                                     ["--repeats", str(2 ** 70)], ["--classes", "smooth,smooth"],
-                                    ["--classes", ","]])
+                                    ["--classes", ","]], ids=" ".join)
 def test_bench_sim_refuses_huge_or_repeated_values_before_measuring(tmp_path, capsys, option):
     argv = ["bench-sim", str(tiny_setup_file(tmp_path)), "--out", str(tmp_path / "bench"), "--quiet",
             "--classes", "smooth", "--ref-spp", "4", "--spp", "1", "--window", "8", "--repeats", "1", *option]
