@@ -40,7 +40,7 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def cmd_render(args: argparse.Namespace) -> None:
-    from sim.dataset import FrameSpec, check_counts, check_render, write_setup
+    from sim.dataset import FrameSpec, check_counts, check_inputs, check_render, write_setup
 
     setups = select_setups(load_setups(args.setup), args.only, args.setup)
     if args.list:
@@ -50,6 +50,9 @@ def cmd_render(args: argparse.Namespace) -> None:
     for setup in setups:  # every setup of a suite is checked before the first is rendered
         check_render(setup, spec, args.fidelity, args.spp)
     check_counts(Path(args.out), spec, [s.name for s in setups])
+    textures = [s.surface.texture for s in setups if Path(s.surface.texture).is_file()]
+    check_inputs(Path(args.out), [s.name for s in setups],
+                 [p for p in (args.setup, *textures, args.images) if p and Path(p).exists()])
     for setup in setups:
         out = write_setup(Path(args.out), setup, spec, args.fidelity, args.spp,
                           progress=not args.quiet, overwrite=args.overwrite, raw=args.raw)
@@ -276,16 +279,18 @@ def add_train(sub) -> None:
     p.set_defaults(func=cmd_train)
 
 
-def _compensate_outputs(out: Path, desired: list[str], names: list[str], inputs: list[str]) -> list[Path]:
+def _compensate_outputs(out: Path, desired: list[str], names: list[str], inputs: list[str],
+                        overwrite: bool) -> list[Path]:
     """The files ``procam compensate`` writes: ``out`` itself for one desired image and a ``.png``
     name, else ``out/<name>.png`` per image.
 
     Raises
     ------
     ProcamError
-        Before anything is read or written: if an output would replace one of the inputs (a
-        desired image, the surface, the run or checkpoint), ``out`` names a file of another image
-        type for one image, or ``out`` is an existing file for several.
+        Before anything is written: if an output would replace one of the inputs (a desired
+        image, the surface, the run or checkpoint, the run's dataset), or (without ``overwrite``)
+        an existing file, ``out`` names a file of another image type for one image, or ``out`` is
+        an existing file for several.
     """
     if len(desired) == 1 and out.suffix.lower() == ".png":
         targets = [out]
@@ -302,6 +307,8 @@ def _compensate_outputs(out: Path, desired: list[str], names: list[str], inputs:
         if owner := next((q for q in (path, *path.parents) if q in kept), None):
             where = "overwrite" if owner == path else "write inside"
             raise ProcamError(f"--out {out}: would {where} the input {kept[owner]}; choose another output")
+        if target.exists() and not overwrite:
+            raise ProcamError(f"--out {out}: {target} exists; pass --overwrite to replace it")
     return targets
 
 
@@ -317,13 +324,15 @@ def cmd_compensate(args: argparse.Namespace) -> None:
         return torch.from_numpy(to_float(np.stack(images))).permute(0, 3, 1, 2)
 
     names = [Path(p).with_suffix(".png").name for p in args.desired]
+    if Path(args.run).is_file() and not args.surface:
+        raise ProcamError(f"{args.run}: a state dict file needs --surface IMAGE (the capture of the "
+                          "gray frame, e.g. cam/warp/ref/img_gray.png), which also gives the size")
+    dataset = read_run_config(args.run).get("dataset") if Path(args.run).is_dir() else None
     targets = _compensate_outputs(Path(args.out), args.desired, names,
-                                  [args.run, *([args.surface] if args.surface else [])])
+                                  [args.run, *([args.surface] if args.surface else []),
+                                   *([dataset] if isinstance(dataset, str) else [])], args.overwrite)
     surface = read_png(args.surface) if args.surface else None
     if Path(args.run).is_file():
-        if surface is None:
-            raise ProcamError(f"{args.run}: a state dict file needs --surface IMAGE (the capture of the "
-                              "gray frame, e.g. cam/warp/ref/img_gray.png), which also gives the size")
         h, w = surface.shape[:2]
     else:
         w, h = run_size(read_run_config(args.run))
@@ -361,6 +370,9 @@ def add_compensate(sub) -> None:
                                      "view); required with a .pth, for a run it replaces the one of "
                                      "the dataset it was trained on")
     p.add_argument("--out", required=True, help="output PNG (one image) or folder")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace output files that exist (never an input: the run, its dataset, a "
+                        "desired or surface image)")
     _target_options(p, "none")
     p.set_defaults(func=cmd_compensate)
 

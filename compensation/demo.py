@@ -22,7 +22,8 @@ from compensation.experiments.closed_loop import (closed_loop, closed_loop_targe
                                                  uncompensated, write_captures)
 from compensation.experiments.targets import TargetPolicy
 from compensation.reports.report import build_report
-from compensation.experiments.jobs import reusable, target_cells, write_results, write_study_record
+from compensation.experiments.jobs import (check_study_folder, reusable, target_cells, write_results,
+                                          write_study_record)
 from compensation.methods import applicable, make_config
 from compensation.training.config import PROFILES
 from compensation.experiments.runs import SCORES, load_run, train_run
@@ -142,11 +143,18 @@ def run_demo(out: Path, progress: bool = True, target: TargetPolicy = TargetPoli
         What ``demo.json`` holds: ``uncompensated`` (closed loop, y' projected as is, with the
         ``target`` record), per method ``surrogate``, ``closed_loop`` and ``train_seconds``, and
         ``oracle`` (iterative refinement rows).
+
+    Raises
+    ------
+    ProcamError
+        Before anything is written, if ``out`` is not a folder the demo may write
+        (:func:`~compensation.experiments.jobs.check_study_folder`).
     """
     out = Path(out)
     prof = {**PROFILES[PROFILE], **{k: v for k, v in overrides.items() if v is not None}}
     setup = load_setup(scene_path("default"))
     spec = FrameSpec(prof["n_train"], prof["n_test"], (prof["size"],) * 2)
+    check_study_folder(out, "demo", "bench")
     setup_dir = write_setup(out / "data", setup, spec, progress=progress)
     data = load_setup_data(setup_dir, prof["n_train"], prof["n_test"])
     sim = simulator_for(setup_dir)

@@ -259,9 +259,16 @@ def bench_sim(setup: Setup, out: Path, **options) -> dict[str, Path]:
     -------
     dict
         ``{"csv": path, "chart": path}`` plus ``"sentence"``: the read-off of the ``auto`` choice.
+
+    Raises
+    ------
+    ProcamError
+        If ``out`` is a file, or an option is refused (:func:`measure`).
     """
-    rows, summary = measure(setup, **options)
     out = Path(out)
+    if out.exists() and not out.is_dir():  # before the minutes of measuring
+        raise ProcamError(f"--out {out}: exists and is a file; bench-sim writes into a folder")
+    rows, summary = measure(setup, **options)
     csv_path, png_path = out / f"bench_sim_{setup.name}.csv", out / f"bench_sim_{setup.name}.png"
     write_csv(rows, csv_path)
     plot(rows, summary, png_path)

@@ -273,6 +273,29 @@ def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
     return record
 
 
+def check_inputs(root: Path, names: list[str], inputs: list[Path]) -> None:
+    """Refuse a render of the setups ``names`` into ``root`` that would write over or clear one of
+    its ``inputs`` (the setup file, texture files, the folder of ``--images``): an input that is,
+    or lies in, the root's frames or records or a setup folder's records, captures or
+    registration.
+
+    Raises
+    ------
+    DatasetError
+        Naming the root, the path the render writes and the input.
+    """
+    root = Path(root).resolve()
+    entries = (layout.SETUP_FILE, layout.RECORD_FILE, layout.META_FILE, layout.CAM, layout.REGISTRATION_DIR)
+    written = [root / layout.FRAMES_FILE, root / layout.LOCK_FILE, root / layout.CACHE_DIR,
+               *(root / split for split in layout.SPLITS),
+               *(root / name / entry for name in names for entry in entries)]
+    for given in inputs:
+        path = Path(given).resolve()
+        if hit := next((w for w in written if w == path or w in path.parents), None):
+            raise DatasetError(f"--out {root}: the render writes {hit}, which is or holds its input "
+                               f"{given}; choose another --out")
+
+
 def check_counts(root: Path, spec: FrameSpec, names: list[str]) -> None:
     """Refuse a render that would leave setups of a root with fewer captures than its frames.
 
@@ -443,6 +466,22 @@ def _changes(out: Path, setup: Setup, expected: dict) -> list[str]:
     return changes
 
 
+def _check_procam_folders(root: Path, out: Path) -> None:
+    """Refuse, before anything is written, a root whose frame folders hold frames without the
+    root's ``frames.json`` (e.g. the official benchmark's root: a render would prune and replace
+    them), or a setup folder ``out`` holding captures without a record of procam's
+    (``setup.toml``, ``render.json`` or ``meta.json``), which not even ``--overwrite`` clears."""
+    if not (root / layout.FRAMES_FILE).exists():
+        for split in layout.SPLITS:
+            if next((root / split).glob("img_*.png"), None) is not None:
+                raise DatasetError(f"{root / split}: holds frames procam did not write ({root} has no "
+                                   f"{layout.FRAMES_FILE}); render into another --out")
+    records = (layout.SETUP_FILE, layout.RECORD_FILE, layout.META_FILE)
+    if (out / layout.CAM).exists() and not any((out / name).exists() for name in records):
+        raise DatasetError(f"{out / layout.CAM}: captures procam did not render (no {', '.join(records)} "
+                           "beside them); render into another --out")
+
+
 def _clear(out: Path) -> None:
     """Remove a setup folder's captures and records (the root's transport cache stays: it is keyed
     by what the light transport sees). ``meta.json`` goes first and the record last, so that a run
@@ -579,15 +618,17 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
     Raises
     ------
     ProcamError
-        If an input is refused (:func:`check_render`, :func:`projector_frames`), another process
-        writes the root, the root's frames differ, or (without ``overwrite``) the setup folder
-        holds captures rendered differently; the message names the file or key.
+        If an input is refused (:func:`check_render`, :func:`projector_frames`), the root or the
+        setup folder holds frames or captures procam did not write (even with ``overwrite``),
+        another process writes the root, the root's frames differ, or (without ``overwrite``) the
+        setup folder holds captures rendered differently; the message names the file or key.
     """
     root = Path(root)
     out = root / setup.name
     expected = check_render(setup, spec, fidelity, spp)
     frames = projector_frames(spec)
     counts = {k: len(v) for k, v in frames.items()}
+    _check_procam_folders(root, out)
     with root_lock(root):
         _check_frames_manifest(root, spec)
         changes = _changes(out, setup, expected)

@@ -18,9 +18,11 @@ which the kernel masks, so no thread ever changes the process umask.
 """
 from __future__ import annotations
 
+import fnmatch
 import json
 import os
 import secrets
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +69,40 @@ def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def check_output_folder(folder: str | os.PathLike, known: Iterable[str], what: str) -> None:
+    """Refuse to write the outputs of ``what`` into ``folder`` where it is a file or holds an entry
+    whose name matches none of the ``known`` patterns (:mod:`fnmatch`; the temporary files a
+    killed :func:`atomic_write` leaves are known too): the user's own files are never written over,
+    beside, or (by a later ``--overwrite``) deleted. A folder that does not exist is accepted.
+
+    Raises
+    ------
+    DatasetError
+        Naming the folder and up to five of the entries.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> (folder / "thesis.tex").write_text("mine")
+    4
+    >>> check_output_folder(folder, ("results.csv", "runs"), "study")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    sim.errors.DatasetError: ...: holds thesis.tex, which no study writes; refusing to write there (move those files or choose another output)
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise DatasetError(f"{folder}: exists and is a file; the output of {what} is a folder")
+    patterns = (*known, f".*{TEMP_SUFFIX}")
+    foreign = sorted(p.name for p in folder.iterdir()
+                     if not any(fnmatch.fnmatchcase(p.name, k) for k in patterns)) if folder.is_dir() else []
+    if foreign:
+        raise DatasetError(f"{folder}: holds {', '.join(foreign[:5])}{' …' if len(foreign) > 5 else ''}, "
+                           f"which no {what} writes; refusing to write there (move those files or "
+                           "choose another output)")
 
 
 def remove_temporaries(folder: str | os.PathLike) -> None:

@@ -510,6 +510,29 @@ def test_ctrl_c_inside_a_render_job_stops_the_study(tmp_path, capsys, monkeypatc
     assert not (tmp_path / "out" / "results.csv").exists()
 
 
+def test_a_study_folder_holds_one_study(failed_study, tmp_path, capsys):
+    out = tmp_path / "out"
+    shutil.copytree(failed_study, out)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    other = failing_study_file(tmp_path / "files", "other")
+    _fails(capsys, ["study", str(other), "--out", str(out), "--quiet"], str(out / "study.json"),
+           "holds the study 'allfail'", "choose another --out for the study 'other'")
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    # the study itself goes on in its folder
+    assert main(["study", str(failing_study_file(tmp_path / "files")), "--out", str(out), "--quiet"]) == 0
+
+
+@pytest.mark.slow
+def test_the_corrected_study_renders_where_the_failed_one_left_off(failed_study, tmp_path, capsys):
+    """A study whose renders were refused, its base corrected, runs in the same folder."""
+    out = tmp_path / "out"
+    shutil.copytree(failed_study, out)
+    study = failing_study_file(tmp_path / "files")
+    (tmp_path / "files" / "base.toml").write_text(tiny_toml("base", 16, registration={"method": "exact"}))
+    assert main(["study", str(study), "--out", str(out), "--quiet"]) == 0
+    assert {r["status"] for r in csv_rows(out / "results.csv")} == {"ok"}
+
+
 def test_an_unreachable_ray_cluster_is_refused_before_anything_is_written(tmp_path, capsys):
     pytest.importorskip("ray")
     _fails(capsys, ["study", str(failing_study_file(tmp_path)), "--out", str(tmp_path / "out"),

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from compensation.experiments.executors import LocalExecutor
-from compensation.experiments.jobs import simulated, write_results, write_study_record
+from compensation.experiments.jobs import check_study_folder, simulated, write_results, write_study_record
 from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name
 from compensation.experiments.targets import TargetPolicy
 from compensation.methods import applicable, get_method, make_config
@@ -229,8 +229,9 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
     ------
     ProcamError
         Without a suite: if ``data_root`` is not given or holds no setup, or ``cfg.size`` is set
-        (found setups keep their own size); if a setup cannot be rendered or its test captures
-        scored.
+        (found setups keep their own size); if ``out`` is not a folder this bench may write
+        (:func:`~compensation.experiments.jobs.check_study_folder`); if a setup cannot be rendered
+        or its test captures scored.
     """
     out = Path(out)
     executor = executor or LocalExecutor()
@@ -249,6 +250,7 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
                      test_frames=cfg.test_frames)
     scoring = Scoring(cfg.tests, cfg.closed_loop, official=True, masks=cfg.closed_loop,
                       renders_required=True, target=cfg.target)
+    check_study_folder(out, out.name, "bench")
     outcome = execute(plan, out, data_root, spec, scoring, executor, setups, progress, cfg.raw)
     seed = cfg.overrides.get("seed", 0)
     tabled = [r for r in plan.runs if r.labels["table"] != "pretrain"]

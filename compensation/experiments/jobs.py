@@ -41,7 +41,7 @@ from compensation.experiments.runs import (load_run, package_version, scores_are
                                           source_revision, train_run)
 from sim.dataset import FrameSpec, write_setup
 from sim.errors import ProcamError
-from sim.io import atomic_write, read_json, to_uint8, write_json, write_png
+from sim.io import atomic_write, check_output_folder, read_json, to_uint8, write_json, write_png
 from sim.layout import META_FILE, SETUP_FILE, image_name
 from sim.setup import Setup
 
@@ -478,6 +478,36 @@ def versions() -> dict:
         mitsuba = "unknown"
     return {"procam": package_version(), "procam source": source_revision(), "torch": torch.__version__,
             "mitsuba": mitsuba, "python": platform.python_version()}
+
+
+FOLDER_ENTRIES = ("study.json", "results.csv", "per_image.csv", "summary.csv", "breakpoints.csv",
+                  "failures.csv", "failures.json", "bench.json", "report.html", "charts", "data", "runs",
+                  "baselines", "reachable", "official", "table[123]*", "per_setup.*", "demo.png", "demo.json",
+                  "compare-*")
+"""What a study, bench or demo folder holds (:mod:`fnmatch` patterns): its records, tables, report
+and charts (``procam report``), datasets, runs, baselines and comparisons."""
+
+
+def check_study_folder(out: Path, name: str, kind: str) -> None:
+    """Refuse to write the study (or bench) ``name`` into ``out`` where that holds another study
+    or bench (its ``study.json`` of another ``name`` or ``kind``), or, without a ``study.json``, is
+    a file or holds an entry none of them writes (:data:`FOLDER_ENTRIES`: the user's own files);
+    nothing is written then. In its own folder a study writes only those entries, whatever else
+    is put there.
+
+    Raises
+    ------
+    ProcamError
+        Naming the folder, and the study it holds.
+    """
+    record = Path(out) / "study.json"
+    if not record.exists():
+        check_output_folder(out, FOLDER_ENTRIES, "study, bench or demo")
+        return
+    held = read_json(record, "study record")
+    if (held.get("kind", "study"), held.get("name")) != (kind, name):
+        raise ProcamError(f"{record}: this folder holds the {held.get('kind', 'study')} "
+                          f"{held.get('name')!r}; choose another --out for the {kind} {name!r}")
 
 
 def write_study_record(out: Path, record: dict) -> Path:

@@ -38,7 +38,8 @@ from compensation.scores.metrics import evaluate, psnr_per_image
 from compensation.training.config import TrainConfig
 from sim.dataset import MAX_SIDE
 from sim.errors import DatasetError, ProcamError
-from sim.io import atomic_write, read_json, read_png, to_float, to_uint8, write_json, write_png
+from sim.io import (atomic_write, check_output_folder, read_json, read_png, to_float, to_uint8, write_json,
+                    write_png)
 from sim.layout import N_PLAIN, REF, capture_dir, image_name
 
 CHECKPOINT_FILE = "checkpoint.pt"
@@ -169,12 +170,7 @@ def _check_out_dir(out_dir: Path, overwrite: bool) -> None:
     if out_dir.exists() and not (out_dir / "metrics.json").exists():
         raise ProcamError(f"{out_dir}: exists and is not a run directory (no metrics.json); "
                           "refusing to replace it")
-    if out_dir.exists():
-        known = {*RUN_ENTRIES, *(m.state_file for m in METHODS.values())}
-        if foreign := sorted(p.name for p in out_dir.iterdir() if p.name not in known):
-            raise ProcamError(f"{out_dir}: holds {', '.join(foreign[:5])}{' …' if len(foreign) > 5 else ''}, "
-                              "which no run writes; refusing to replace it (move those files or choose "
-                              "another output)")
+    check_output_folder(out_dir, (*RUN_ENTRIES, *(m.state_file for m in METHODS.values())), "run")
 
 
 def partial_dir(out_dir: Path) -> Path:
@@ -236,13 +232,18 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
     Raises
     ------
     ProcamError
-        If the output exists (and ``overwrite`` is not set, or it is not a run), its folder cannot
-        be written, the dataset is incomplete (DatasetError), ``init`` does not fit the method,
-        or training is interrupted (its state is kept for a resume).
+        If the output exists (and ``overwrite`` is not set, or it is not a run), holds the weights
+        ``init`` names, its folder cannot be written, the dataset is incomplete (DatasetError),
+        ``init`` does not fit the method, or training is interrupted (its state is kept for a
+        resume).
     """
     setup_dir, out_dir = Path(setup_dir), Path(out_dir)
     check_config(cfg)
     _check_out_dir(out_dir, overwrite)
+    init = getattr(cfg.options, "init", None)
+    if init and out_dir.resolve() in (Path(init).resolve(), *Path(init).resolve().parents):
+        raise ProcamError(f"{out_dir}: holds the weights option init = {init} starts from, which "
+                          "replacing the run would delete; choose another output")
     device = resolve_device(cfg.device)
     data = load_setup_data(setup_dir, cfg.n_train, cfg.n_test)
     options = cfg.options

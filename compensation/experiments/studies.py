@@ -61,7 +61,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 from compensation.experiments.executors import LocalExecutor
-from compensation.experiments.jobs import write_results, write_study_record
+from compensation.experiments.jobs import check_study_folder, write_results, write_study_record
 from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name, slug
 from compensation.experiments.targets import DEFAULT_OUT_OF_REACH, TargetPolicy
 from compensation.methods import applicable, get_method, make_config, option_owners
@@ -502,13 +502,15 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     Raises
     ------
     ProcamError
-        Before anything is written: if the study does not expand (:func:`expand`) or its frames
-        cannot be held (:class:`~sim.dataset.FrameSpec`).
+        Before anything is written: if the study does not expand (:func:`expand`), its frames
+        cannot be held (:class:`~sim.dataset.FrameSpec`), or ``out`` is not a folder this study
+        may write (:func:`~compensation.experiments.jobs.check_study_folder`).
     """
     out = Path(out)
     executor = executor or LocalExecutor()
     plan = expand(study)
     spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size)
+    check_study_folder(out, study.name, "study")
     out.mkdir(parents=True, exist_ok=True)
     record = study_record(study, plan)
     write_study_record(out, {**record, "executor": executor.name})

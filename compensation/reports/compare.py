@@ -27,7 +27,7 @@ from compensation.reports.report import load_folder
 from compensation.reports.summary import (CONFIDENCE, axis_keys, bootstrap_interval, cell_text, is_finite,
                                           write_csv)
 from sim.errors import ProcamError
-from sim.io import write_text
+from sim.io import check_output_folder, write_text
 
 SURROGATE = ("psnr", "ssim", "deltae")
 """Scores always compared; their ``cl_`` (closed-loop) forms too where both folders have them."""
@@ -343,6 +343,10 @@ def _read(folder: Path, name: str) -> tuple[dict, list[dict]]:
     return load_folder(Path(folder))
 
 
+COMPARE_FILES = ("compare.csv", "compare.md")
+"""What :func:`compare_folders` writes into its output folder."""
+
+
 def compare_folders(a: Path, b: Path, out: Path | None = None) -> dict:
     """Compare the study or bench folders ``a`` and ``b``: write ``compare.csv`` and ``compare.md``
     into ``out`` (default ``a/compare-<name of b>``).
@@ -357,7 +361,8 @@ def compare_folders(a: Path, b: Path, out: Path | None = None) -> dict:
     ------
     ProcamError
         If either is not a study or bench folder, both are the same folder, they are not of one
-        kind and axes (:func:`key_columns`), or no run of one matches a run of the other.
+        kind and axes (:func:`key_columns`), no run of one matches a run of the other, or ``out``
+        is a file or holds anything but :data:`COMPARE_FILES`.
     """
     a, b = Path(a), Path(b)
     (study_a, rows_a), (study_b, rows_b) = _read(a, "A"), _read(b, "B")
@@ -369,10 +374,11 @@ def compare_folders(a: Path, b: Path, out: Path | None = None) -> dict:
         raise ProcamError(f"{a}, {b}: no run of one matches a run of the other on {', '.join(columns)}: "
                           "expected two folders of the same study or bench")
     out = Path(out) if out is not None else a / f"compare-{b.resolve().name}"
+    check_output_folder(out, COMPARE_FILES, "compare")
     rows = compare_rows(pairs, only_a, only_b, columns)
     counts = (len(pairs), len(only_a), len(only_b))
-    return {"csv": write_csv(out / "compare.csv", csv_columns(columns), rows),
-            "md": write_markdown(out / "compare.md", rows, columns, (str(a), str(b)), counts),
+    return {"csv": write_csv(out / COMPARE_FILES[0], csv_columns(columns), rows),
+            "md": write_markdown(out / COMPARE_FILES[1], rows, columns, (str(a), str(b)), counts),
             "rows": rows, "matched": counts[0], "only_a": counts[1], "only_b": counts[2],
             "columns": columns}
 
