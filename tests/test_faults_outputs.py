@@ -148,7 +148,7 @@ CASES = {
 not the run ``@compennet``) and either the path its one-line refusal names, or (a list) the only
 files it may write."""
 SLOW_CASES = {
-    "bench-sim into the user's folder": (["bench-sim", "inputs/tiny.toml", "--out", "mine", "--quiet",
+    "bench-sim into the user's folder": (["bench-sim", "@inputs/tiny.toml", "--out", "@mine", "--quiet",
                                           "--classes", "smooth", "--ref-spp", "4", "--spp", "1",
                                           "--window", "8", "--repeats", "1"],
                                          ["mine/bench_sim_tiny.csv", "mine/bench_sim_tiny.png"]),
