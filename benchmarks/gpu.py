@@ -117,7 +117,7 @@ def bench_render(args: argparse.Namespace) -> dict:
             meta = json.loads((folder / "meta.json").read_text())
             rows.append({"setup": setup.name, "seconds": seconds, "variant": meta.get("variant"),
                          "captures": meta.get("captures_this_run"), "timings_s": meta.get("timings_s")})
-        operator = TransportOperator.load(next((Path(tmp) / setups[0].name).rglob("transport_*.npz")))
+        operator = TransportOperator.load(next(Path(tmp).rglob("transport_*.npz")))
         wp, hp = operator.projector_size
         frames = np.random.default_rng(0).random((args.frames, hp, wp, 3), np.float32)
         project = {}
