@@ -94,3 +94,19 @@ def csv_rows(path: Path) -> list[dict]:
     """The rows of the CSV file at ``path``, each a dict keyed by the header."""
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
+
+
+def refuse_renders(monkeypatch, suffix: str) -> None:
+    """Make every render job of a setup whose name ends with ``suffix`` fail with a ProcamError
+    ("simulated refusal"); the others render as usual."""
+    import compensation.experiments.jobs as jobs
+    from sim.errors import ProcamError
+
+    real = jobs.write_setup
+
+    def refuse(root, setup, *args, **kwargs):
+        if setup.name.endswith(suffix):
+            raise ProcamError("simulated refusal")
+        return real(root, setup, *args, **kwargs)
+
+    monkeypatch.setattr(jobs, "write_setup", refuse)

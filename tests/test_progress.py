@@ -8,12 +8,12 @@ import re
 
 import pytest
 
+from helpers import refuse_renders
 from test_studies import BASE, STUDY
 from compensation.cli import main
 from compensation.experiments.executors import LocalExecutor, Task
 from compensation.experiments.jobs import BaselineJob
 from compensation.experiments.plans import JobCount, eta
-from sim.errors import ProcamError
 
 
 def test_eta_leaves_out_what_is_not_known():
@@ -74,16 +74,7 @@ def test_a_study_shows_its_jobs_and_names_each_bar(tmp_path, capfd, monkeypatch)
                          "time left about 0 s")
     assert all(line.endswith("run yet)") for line in lines[:-1])
 
-    import compensation.experiments.jobs as jobs
-
-    real = jobs.write_setup
-
-    def refuse(root, setup, *args, **kwargs):
-        if setup.name.endswith("0p2"):
-            raise ProcamError("simulated refusal")
-        return real(root, setup, *args, **kwargs)
-
-    monkeypatch.setattr(jobs, "write_setup", refuse)
+    refuse_renders(monkeypatch, "0p2")
     (tmp_path / "tiny.toml").write_text(STUDY.replace("[0.02, 0.1]", "[0.02, 0.1, 0.2]"))
     assert main(args) == 0  # a third setup that cannot render: its render, fits and score failed
     lines = [line for line in capfd.readouterr().err.splitlines() if line.startswith("procam: jobs done:")]

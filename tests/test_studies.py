@@ -14,7 +14,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import pytest
 
-from helpers import csv_rows, tiny_toml
+from helpers import csv_rows, refuse_renders, tiny_toml
 from compensation.cli import main
 from compensation.experiments.jobs import RESULT_COLUMNS, run_status
 from compensation.reports.summary import STATUSES
@@ -273,16 +273,7 @@ def test_run_status(tmp_path):
 
 @pytest.mark.slow
 def test_a_setup_that_cannot_render_fails_its_rows_only(tiny, monkeypatch, capsys):
-    import compensation.experiments.jobs as jobs
-
-    real = jobs.write_setup
-
-    def refuse(root, setup, *args, **kwargs):
-        if setup.name.endswith("0p1"):
-            raise ProcamError("simulated refusal")
-        return real(root, setup, *args, **kwargs)
-
-    monkeypatch.setattr(jobs, "write_setup", refuse)
+    refuse_renders(monkeypatch, "0p1")
     assert main(["study", str(tiny / "tiny.toml"), "--out", str(tiny / "out"), "--quiet"]) == 0
     rows = csv_rows(tiny / "out" / "results.csv")
     assert [r["status"] for r in rows] == ["ok", "ok", "failed", "failed"]
