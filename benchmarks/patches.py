@@ -34,6 +34,7 @@ import torch  # noqa: E402
 from compensation.data import load_setup_data  # noqa: E402
 from compensation.scores.metrics import evaluate  # noqa: E402
 from compensation.methods.compennet import CompenNetMethod, CompenNetOptions  # noqa: E402
+from compensation.reports.summary import write_csv  # noqa: E402
 from compensation.training.config import TrainConfig  # noqa: E402
 from sim.dataset import FrameSpec, write_setup  # noqa: E402
 from sim.setup import load_setups  # noqa: E402
@@ -93,12 +94,7 @@ def main() -> None:
                          "train_seconds": round(fit.seconds, 2), "psnr": round(scores["psnr"], 3),
                          "ssim": round(scores["ssim"], 4), "uncompensated_psnr": round(base["psnr"], 3)})
             print(rows[-1], flush=True)
-            partial = table.with_suffix(".csv.partial")
-            with open(partial, "w", newline="") as f:
-                writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-                writer.writeheader()
-                writer.writerows(rows)
-            partial.replace(table)
+            write_csv(table, list(rows[-1]), rows, digits=None)
     fig, ax = plt.subplots(figsize=(6, 4))
     for patch, batch in dict.fromkeys((r["patch"], r["batch"]) for r in rows):
         mine = [r for r in rows if (r["patch"], r["batch"]) == (patch, batch)]

@@ -264,7 +264,7 @@ def load_study(path: Path | str) -> Study:
     if not isinstance(fixed, dict) or "name" in fixed:
         raise _error(path, "setup", fixed, "expected a table of setup sections (without a name)")
     for key in ("render_seeds", "closed_loop", "raw"):
-        if not isinstance(data.get(key, key == "closed_loop"), bool):
+        if key in data and not isinstance(data[key], bool):
             raise _error(path, key, data[key], "expected true or false")
     only = data.get("only", [])
     if not isinstance(only, list) or not all(isinstance(o, str) and o.strip() for o in only):
