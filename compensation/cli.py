@@ -429,6 +429,9 @@ def cmd_bench(args: argparse.Namespace) -> None:
             print(Path(files[name]).read_text())
     if result.failures:
         total = len(result.rows) + len(result.failures)
+        if not result.rows:
+            raise ProcamError(f"every one of the {total} runs failed (their errors are in {files['failures']}); "
+                              "the tables hold no result")
         print(f"procam: warning: {len(result.failures)} of {total} runs failed (their errors are in "
               f"{files['failures']}); the tables average the runs that finished", file=sys.stderr)
 
@@ -503,6 +506,9 @@ def cmd_study(args: argparse.Namespace) -> None:
     print(f"procam: summary, break points, failures -> {Path(args.out)}/*.csv; charts -> "
           f"{Path(args.out) / 'charts'}")
     print(f"procam: report -> {page}")
+    if done["rows"] and done["failed"] == done["rows"]:
+        raise ProcamError(f"every one of the {done['rows']} result rows failed (their errors are in "
+                          f"{Path(args.out) / 'failures.csv'} and the report); the study holds no result")
 
 
 def add_study(sub) -> None:

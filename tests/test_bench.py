@@ -216,6 +216,9 @@ def test_resume_trains_nothing_and_failures_are_isolated(bench, monkeypatch, cap
     assert all("simulated crash" in f["error"] for f in failures)
     nayar = [r for r in csv_rows(bench / "bench" / "table1.csv") if r["method"] == "nayar"]
     assert {r["setups"] for r in nayar} == {"1"}  # s2 still counted
+    only_nayar = ["--only", "s1", "--tables", "1", "--size", "32", "--sizes", "4,8", "--n-test", "2", "--quiet"]
+    assert _bench(bench, methods="nayar", args=only_nayar) == 2  # no result at all is no success
+    assert "every one of the 2 runs failed" in capsys.readouterr().err
     monkeypatch.undo()
 
     # Another --iters changes the network runs' configuration only: those are trained again, the

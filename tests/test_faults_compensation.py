@@ -382,9 +382,11 @@ def test_bench_selections_given_twice_are_refused(tmp_path, capsys, option, expe
 
 @pytest.fixture(scope="module")
 def failed_study(tmp_path_factory) -> Path:
-    """The folder of a study whose every render was refused (:func:`helpers.failing_study_file`)."""
+    """The folder of a study whose every render was refused (:func:`helpers.failing_study_file`):
+    the report is written, and the command says it holds no result with a non-zero exit."""
     tmp = tmp_path_factory.mktemp("failed")
-    assert main(["study", str(failing_study_file(tmp)), "--out", str(tmp / "out"), "--quiet"]) == 0
+    assert main(["study", str(failing_study_file(tmp)), "--out", str(tmp / "out"), "--quiet"]) == 2
+    assert (tmp / "out" / "report.html").is_file()
     return tmp / "out"
 
 
@@ -519,7 +521,7 @@ def test_a_study_folder_holds_one_study(failed_study, tmp_path, capsys):
            "holds the study 'allfail'", "choose another --out for the study 'other'")
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     # the study itself goes on in its folder
-    assert main(["study", str(failing_study_file(tmp_path / "files")), "--out", str(out), "--quiet"]) == 0
+    assert main(["study", str(failing_study_file(tmp_path / "files")), "--out", str(out), "--quiet"]) == 2
 
 
 @pytest.mark.slow

@@ -50,7 +50,7 @@ def workspace(tmp_path_factory) -> Path:
     assert main(["train", str(setup), "--method", "nayar", "--out", str(ws / "nayar"), *TRAIN]) == 0
     assert main(["train", str(setup), "--method", "compennet", "--iters", "2", "--batch", "4",
                  "--out", str(ws / "compennet"), *TRAIN]) == 0
-    assert main(["study", str(study), "--out", str(ws / "study"), "--quiet"]) == 0
+    assert main(["study", str(study), "--out", str(ws / "study"), "--quiet"]) == 2
     shutil.copytree(ws / "study", ws / "study2")
     mine = ws / "mine"
     mine.mkdir()
