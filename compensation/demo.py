@@ -3,8 +3,8 @@
 Render the shipped default setup at the quick profile, fit CompenNet and TPS, score both on the
 surrogate benchmark and in closed loop (their compensation of the target y' projected back through
 the simulated setup and scored against y'; y' is the desired image mapped by the target policy,
-:mod:`~compensation.experiments.targets`), beside the iterative-feedback oracle and the reachable
-share of y''s pixels; print the table, headed by the policy and its map, and write a figure:
+:mod:`~compensation.experiments.targets`), beside the iterative-feedback oracle, the exact optimum
+(:mod:`~compensation.experiments.optimum`) and the reachable share of y''s pixels; print the table, headed by the policy and its map, and write a figure:
 surface, uncompensated, each method's compensated capture, target. The folder is a
 one-point bench (``study.json``, ``results.csv``, each run's closed-loop captures), and the demo ends
 by writing its HTML report (``report.html``, :mod:`compensation.reports.report`).
@@ -20,6 +20,7 @@ from compensation.data import load_setup_data
 from compensation.experiments.closed_loop import (closed_loop, closed_loop_target, iterative_refinement,
                                                  reachable_mask, reachable_overlay, simulator_for,
                                                  uncompensated, write_captures)
+from compensation.experiments.optimum import optimum
 from compensation.experiments.targets import TargetPolicy
 from compensation.reports.report import build_report
 from compensation.experiments.jobs import (check_study_folder, reusable, target_cells, write_results,
@@ -142,7 +143,7 @@ def run_demo(out: Path, progress: bool = True, target: TargetPolicy = TargetPoli
     dict
         What ``demo.json`` holds: ``uncompensated`` (closed loop, y' projected as is, with the
         ``target`` record), per method ``surrogate``, ``closed_loop`` and ``train_seconds``, and
-        ``oracle`` (iterative refinement rows).
+        ``oracle`` (iterative refinement rows) and ``optimum`` (the exact optimum's scores).
 
     Raises
     ------
@@ -183,15 +184,21 @@ def run_demo(out: Path, progress: bool = True, target: TargetPolicy = TargetPoli
                      "run": f"runs/{run_dir.name}", **_scores(metrics, closed)})
         lines.append(_row(f"{name}: surrogate π†(x̃) vs x", metrics))
         lines.append(_row(f"{name}: closed loop, capture vs y'", closed))
-    results["oracle"] = iterative_refinement(data, sim, report=(ORACLE_ITERATIONS,), policy=target)
+    results["oracle"], frames = iterative_refinement(data, sim, report=(ORACLE_ITERATIONS,), policy=target,
+                                                     return_frames=True)
     lines.append(_row(f"oracle: feedback, {ORACLE_ITERATIONS} it. ({ORACLE_ITERATIONS + 1} projections)",
                       results["oracle"][-1]))
+    results["optimum"], _ = optimum(data, sim, policy=target, starts=(frames,))
+    lines.append(_row(f"exact optimum ({results['optimum']['evaluations']} noise-free eval.)",
+                      results["optimum"]))
     write_png(out / "demo.png", figure(data.surface, as_is[:N_FIGURE], captures, y_target, mask))
     write_json(out / "demo.json", results)
     oracle = results["oracle"][-1]
     base = {"point": 0, "setup": setup.name, "status": "ok", "error": "", **target_cells(unc),
             **{f"cl_unc_{k}": unc[m] for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))},
-            **{f"oracle_{k}": oracle[m] for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))}}
+            **{f"oracle_{k}": oracle[m] for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))},
+            **{f"optimum_{k}": results["optimum"][m]
+               for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))}}
     study = {"name": "demo", "kind": "bench", "question": "How well do CompenNet and TPS compensate "
              "the default setup, on held-out pairs and in closed loop?",
              "base": "default", "axes": [], "methods": list(METHODS),

@@ -7,6 +7,7 @@ capture is reproducible bit for bit and two different captures never share noise
 """
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 import time
@@ -23,7 +24,7 @@ from sim.cores import usable_cores
 from sim.fidelity import make_renderer, resolve, with_depth
 from sim.projector import chain as projector_chain
 from sim.setup import Setup
-from sim.stages import run
+from sim.stages import run, switch_off
 
 Item = TypeVar("Item")
 Result = TypeVar("Result")
@@ -164,6 +165,19 @@ class Simulator:
         rule = camera.rule_exposure(white, black, cam)
         self.setup = replace(self.setup, camera=replace(cam, exposure=rule["exposure"]))
         return rule
+
+    def noise_free(self) -> Simulator:
+        """This simulator without its random draws: the camera's noise stages and the lamp's
+        flicker switched off (the lamp's drift, a deterministic test-time gain, is kept). Its
+        captures are the expected captures up to the 8-bit output; at the ``direct`` and ``path``
+        levels a capture still carries the Monte-Carlo samples of its stream and index (none at
+        ``transport``), so a fixed stream and index make it a fixed function of the frame."""
+        model = copy.copy(self)
+        noise = [s for s in camera.STAGES if s.random]
+        model.setup = replace(self.setup, camera=switch_off(self.setup.camera, noise),
+                              projector=replace(self.setup.projector, flicker=0.0))
+        model.timings = defaultdict(float)
+        return model
 
     def linear(self, frame: np.ndarray, stream: int, index: int) -> np.ndarray:
         """Linear camera radiance (float32, camera resolution) of one projector frame.

@@ -39,6 +39,11 @@ STREAMS = {"ref": REF, "train": TRAIN, "test": TEST, "registration": REGISTRATIO
 CLOSED_LOOP = 16
 """Captures of compensated frames in the closed loop; feedback refinement round ``k`` (from 0)
 uses stream ``CLOSED_LOOP + 1 + k``."""
+OPTIMUM = 90
+"""The noise-free evaluations through which the exact optimum is found: every evaluation of test
+image ``i`` uses index ``i``, so at the ``direct`` and ``path`` levels it sees the same Monte-Carlo
+samples (the model is a fixed function of the frame). A test-time stream, so the lamp's drift
+applies."""
 EXPOSURE = 95
 """Renders of plain white (index 0) and plain black (index 1) that the camera's exposure rule
 sets the exposure from."""

@@ -190,6 +190,8 @@ class BenchResult:
     """Setup name → scores of its test captures (with ``closed_loop`` scores when simulated)."""
     oracle: dict
     """Setup name → the iterative-refinement oracle's rows (closed loop, simulated setups)."""
+    optimum: dict
+    """Setup name → the exact optimum's scores (closed loop, simulated setups)."""
     image_size: str
     """The setups' image size for the titles (e.g. ``"64² px"``)."""
 
@@ -276,7 +278,7 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
             rows.append({**job, "official_tag": record["official_tag"], **record["metrics"]})
         else:
             failures.append({**job, "error": record["error"], "traceback": record.get("traceback", "")})
-    uncompensated, oracle, sizes = {}, {}, set()
+    uncompensated, oracle, optimum, sizes = {}, {}, {}, set()
     for s in setups:
         base = outcome.base.get(s, {"ok": False, "error": "not run"})
         if not base["ok"]:
@@ -285,5 +287,7 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         sizes.add(size)
         if base["oracle"] is not None:
             oracle[s] = base["oracle"]
+        if base.get("optimum") is not None:
+            optimum[s] = base["optimum"]
     image_size = ", ".join(f"{w}x{h}" if w != h else f"{w}²" for h, w in sorted(sizes)) + " px"
-    return BenchResult(rows, failures, uncompensated, oracle, image_size)
+    return BenchResult(rows, failures, uncompensated, oracle, optimum, image_size)

@@ -265,7 +265,8 @@ def uncompensated(data: SetupData, sim: Simulator, desired: torch.Tensor | None 
 
 def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
                          gain: float = 1.0, report: tuple[int, ...] = (1, 2, 4, 8),
-                         policy: TargetPolicy = TargetPolicy()) -> list[dict]:
+                         policy: TargetPolicy = TargetPolicy(),
+                         return_frames: bool = False) -> list[dict] | tuple[list[dict], torch.Tensor]:
     """Model-free feedback compensation (Nayar et al. 2003) aiming at the target y': the oracle row.
 
     Start from x₀ = y'; project xₖ, capture cₖ, correct xₖ₊₁ = clip(xₖ + gain · (y' − cₖ), 0, 1).
@@ -278,12 +279,16 @@ def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor 
         Numbers of corrections k after which the capture cₖ is scored (0 = y' projected as is).
     policy : TargetPolicy
         How y is mapped to the target y' (:func:`closed_loop_target`).
+    return_frames : bool
+        Also return the frames xₖ of the last row (where the exact optimum may start).
 
     Returns
     -------
     list[dict]
         One row per k in ``report``: ``iterations`` (k), the closed-loop scores of cₖ against y'
         (as :func:`closed_loop`'s) and ``projections`` spent so far ((k + 1) per frame).
+    torch.Tensor
+        Only with ``return_frames``: float32 (N, 3, H, W).
     """
     y, _ = closed_loop_target(data, data.test.frames if desired is None else desired, policy)
     mask = reachable_mask(data, y)
@@ -297,5 +302,6 @@ def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor 
         if k in report:
             rows.append({"iterations": k, **closed_loop_scores(captured, y, mask),
                          "projections": int(y.shape[0]) * (k + 1)})
+            last = x
         x = (x + gain * (y - captured)).clamp(0, 1)
-    return rows
+    return (rows, last) if return_frames else rows

@@ -66,13 +66,16 @@ RESULT_COLUMNS = (
     "setup", "method", "n_train", "seed", "status", "error",
     *(_column(s) for s in SCORES), *(f"cl_{_column(s)}" for s in SCORES),
     *(f"unc_{_column(s)}" for s in SCORES), "cl_unc_psnr", "cl_unc_ssim", "cl_unc_deltae",
-    "oracle_psnr", "oracle_ssim", "oracle_deltae", "fit_s", "infer_ms", "run",
+    "oracle_psnr", "oracle_ssim", "oracle_deltae", "optimum_psnr", "optimum_ssim", "optimum_deltae",
+    "fit_s", "infer_ms", "run",
     "cl_psnr_reachable", "cl_unc_psnr_reachable", "reachable_fraction", "target_policy",
     "target_out_of_reach", "target_out_of_reach_used", "target_a", "target_b", "undertrained")
 """Columns of ``results.csv`` after ``point`` and the axis columns (an axis on ``n_train`` is the
 ``n_train`` column itself); a bench adds ``table`` and ``variant``. ``undertrained`` is 1 where the
-run's training loss was still falling at its end (:func:`still_falling`), else 0. The ``cl_`` and ``oracle_``
-scores compare with the target y' of ``target_policy`` (map y' = ``target_a`` · y + ``target_b``,
+run's training loss was still falling at its end (:func:`still_falling`), else 0. The ``optimum_``
+scores are those of the exact optimum's frames (:mod:`~compensation.experiments.optimum`) projected
+as a method's are. The ``cl_``, ``oracle_`` and ``optimum_`` scores compare with the target y' of
+``target_policy`` (map y' = ``target_a`` · y + ``target_b``,
 the mean over the images for the ``image`` policy; ``target_out_of_reach_used``: the share of pixels
 the map was allowed to leave out, above the policy's where that admits no contrast);
 ``reachable_fraction`` is the share of y''s pixels the setup can show."""
@@ -228,8 +231,8 @@ class BaselineJob:
     Attributes
     ----------
     closed_loop : bool
-        Also the closed-loop scores of y projected as is and the iterative-refinement oracle
-        (simulated setups only).
+        Also the closed-loop scores of y projected as is, the iterative-refinement oracle and the
+        exact optimum (simulated setups only).
     masks : Path or None
         Write ``masks/<setup>.png``: the first test images with their physically unreachable
         pixels tinted magenta (closed loop only).
@@ -260,8 +263,9 @@ def baselines(job: BaselineJob) -> dict:
     """Run a :class:`BaselineJob`; returns ``uncompensated`` (scores of the test captures x̃
     against y, with ``closed_loop`` scores of the target y' projected as is when simulated:
     :func:`~compensation.experiments.closed_loop.uncompensated`), ``oracle`` (the rows of
-    :func:`~compensation.experiments.closed_loop.iterative_refinement`, or None) and ``size``
-    ([height, width])."""
+    :func:`~compensation.experiments.closed_loop.iterative_refinement`, or None), ``optimum`` (the
+    scores of :func:`~compensation.experiments.optimum.optimum` started from the oracle's last
+    frames, or None) and ``size`` ([height, width])."""
     setup_dir = Path(job.setup_dir)
     closed = job.closed_loop and simulated(setup_dir)
     key = _baseline_key(job, closed)
@@ -274,11 +278,12 @@ def baselines(job: BaselineJob) -> dict:
             pass
     data = load_setup_data(setup_dir, n_train=1, n_test=job.n_test)
     captures, y = data.test.captures, data.test.frames
-    scores, oracle = evaluate(captures, y), None
+    scores, oracle, best = evaluate(captures, y), None, None
     if closed:
         from compensation.experiments.closed_loop import (closed_loop_target, iterative_refinement,
                                                          reachable_mask, reachable_overlay, simulator_for,
                                                          uncompensated)
+        from compensation.experiments.optimum import optimum
 
         sim = simulator_for(setup_dir)
         scores["closed_loop"], _ = uncompensated(data, sim, policy=job.target)
@@ -288,8 +293,9 @@ def baselines(job: BaselineJob) -> dict:
             strip = reachable_overlay(target, reachable_mask(data, target))
             strip = strip.permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
             write_png(Path(job.masks) / f"{data.name}.png", to_uint8(strip.numpy()))
-        oracle = iterative_refinement(data, sim, policy=job.target)
-    result = {"uncompensated": scores, "oracle": oracle, "size": list(data.size)}
+        oracle, frames = iterative_refinement(data, sim, policy=job.target, return_frames=True)
+        best, _ = optimum(data, sim, policy=job.target, starts=(frames,))
+    result = {"uncompensated": scores, "oracle": oracle, "optimum": best, "size": list(data.size)}
     if job.record is not None:
         write_json(job.record, {"key": key, "result": result})
     return result
@@ -301,9 +307,10 @@ def _loss_grew(run_dir: Path) -> bool:
     return len(losses) > 1 and losses[-1] > DIVERGED_RATIO * losses[0]
 
 
-PER_IMAGE_SCORES = ("psnr", "cl_psnr", "cl_unc_psnr", "oracle_psnr")
+PER_IMAGE_SCORES = ("psnr", "cl_psnr", "cl_unc_psnr", "oracle_psnr", "optimum_psnr")
 """Per test image scores of ``per_image.csv`` (dB): surrogate, closed loop, uncompensated closed loop
-and the oracle's (its most corrections), each against the same image as in ``results.csv``."""
+the oracle's (its most corrections) and the exact optimum's, each against the same image as in
+``results.csv``."""
 
 
 def still_falling(losses: Sequence[float], window: float = UNDERTRAINED_WINDOW,
@@ -412,6 +419,9 @@ def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
             best = max(base["oracle"], key=lambda r: r["iterations"])
             row.update({f"oracle_{_column(k)}": best[k] for k in ("psnr", "ssim", "deltaE")})
             per_image["oracle_psnr"] = best.get("psnr_per_image")
+        if base.get("optimum"):
+            row.update({f"optimum_{_column(k)}": base["optimum"][k] for k in ("psnr", "ssim", "deltaE")})
+            per_image["optimum_psnr"] = base["optimum"].get("psnr_per_image")
     row["per_image"] = {k: v for k, v in per_image.items() if v}
     return row
 
@@ -433,8 +443,8 @@ def per_image_rows(rows: Sequence[dict], keys: Sequence[str]) -> list[dict]:
     (:func:`result_row`); runs without per-image scores give none.
 
     >>> per_image_rows([{"point": 0, "per_image": {"cl_psnr": [20.0, 21.0], "oracle_psnr": [22.0]}},
-    ...                 {"point": 1}], ["point"])[1]
-    {'point': 0, 'image': 2, 'psnr': None, 'cl_psnr': 21.0, 'cl_unc_psnr': None, 'oracle_psnr': None}
+    ...                 {"point": 1}], ["point"])[1]["cl_psnr"]
+    21.0
     """
     out = []
     for row in rows:

@@ -2,18 +2,18 @@
 accuracy.
 
 The data each chart draws comes from small pure functions (:func:`axis_positions`,
-:func:`study_lines`, :func:`baseline_line`, :func:`gain_lines`, :func:`oracle_gain`,
+:func:`study_lines`, :func:`baseline_line`, :func:`gain_lines`, :func:`bound_gain`,
 :func:`speed_points`, :func:`pareto_front`, :func:`heatmap_grid`), tested on
 their own; the ``draw_*`` functions only draw it. Files go to ``DIR/charts/`` as PNG and SVG:
 
 ``study.png``                  one axis: surrogate and closed-loop panels (PSNR, SSIM, ΔE where
                                scored) against the factor, one line per method and training size
-                               with a ± std band, uncompensated and the oracle bound, break points
+                               with a ± std band, uncompensated, the oracle and the optimum, break points
                                (star and vertical line) and failures (red x)
 ``study_<key>=<value>.png``    two axes: the same per value of the second axis
 ``gain.png``                   closed-loop PSNR gain over uncompensated against the factor, one line
                                per method and training size with its bootstrap interval (band), the
-                               1 dB line, the oracle's gain and break points (star); below, the
+                               1 dB line, the oracle's and the optimum's gains, break points (star); below, the
                                share of the targets' pixels the setup can show (reachable fraction)
 ``gain_<key>=<value>.png``     two axes: the same per value of the second axis
 ``speed.png``                  fit time and inference ms per frame (log x) against PSNR (closed loop
@@ -39,8 +39,11 @@ from sim.io import atomic_write
 
 PANELS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("deltae", "ΔE (CIEDE2000)"))
 """Metrics drawn, one column each (ΔE only where scored)."""
-SCOPES = (("", "surrogate", "unc_", None), ("cl_", "closed loop", "cl_unc_", "oracle_"))
-"""Panel rows: (column prefix, title, uncompensated prefix, bound prefix)."""
+SCOPES = (("", "surrogate", "unc_", ()), ("cl_", "closed loop", "cl_unc_", ("oracle_", "optimum_")))
+"""Panel rows: (column prefix, title, uncompensated prefix, prefixes of the method-free rows drawn
+beside: the feedback oracle and the exact optimum)."""
+BOUNDS = {"oracle_": (":", "feedback oracle"), "optimum_": ("-", "exact optimum (physical bound)")}
+"""Line style and label of each method-free row of :data:`SCOPES`."""
 LOG_SPAN = 20
 """A positive numeric factor spanning this ratio or more is drawn on a log axis (e.g. 8 … 500 pairs)."""
 FAILURE_COLOUR = "#d62728"
@@ -132,17 +135,17 @@ def gain_lines(summary: list[dict], key: str, listed: list) -> dict[tuple, dict]
     return lines
 
 
-def oracle_gain(summary: list[dict], key: str, listed: list) -> tuple[list, list]:
-    """The feedback oracle's closed-loop PSNR gain over uncompensated against the factor (the
-    :func:`baseline_line` of each), where both are scored.
+def bound_gain(summary: list[dict], key: str, listed: list, prefix: str) -> tuple[list, list]:
+    """A method-free row's closed-loop PSNR gain over uncompensated against the factor (the
+    :func:`baseline_line` of each), where both are scored; ``prefix`` ``oracle_`` or ``optimum_``.
 
     >>> s = [{"f": 1.0, "oracle_psnr_mean": 20.0, "cl_unc_psnr_mean": 17.0},
     ...      {"f": 2.0, "oracle_psnr_mean": 19.0, "cl_unc_psnr_mean": float("nan")}]
-    >>> oracle_gain(s, "f", [1.0, 2.0])
+    >>> bound_gain(s, "f", [1.0, 2.0], "oracle_")
     ([1.0], [3.0])
     """
     unc = dict(zip(*baseline_line(summary, key, listed, "cl_unc_psnr")))
-    xs, ys = baseline_line(summary, key, listed, "oracle_psnr")
+    xs, ys = baseline_line(summary, key, listed, f"{prefix}psnr")
     kept = [(x, y - unc[x]) for x, y in zip(xs, ys) if x in unc]
     return [x for x, _ in kept], [y for _, y in kept]
 
@@ -292,7 +295,7 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
                              squeeze=False)
     colours = _colours(list({r["method"] for r in summary}))
     sizes = [""] if n_train_follows(summary, key) else sorted({r["n_train"] for r in summary})
-    for row, (prefix, scope, unc, bound) in enumerate(scopes):
+    for row, (prefix, scope, unc, bounds) in enumerate(scopes):
         for col, (metric, label) in enumerate(metrics):
             ax = axes[row][col]
             score = f"{prefix}{metric}"
@@ -308,9 +311,7 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
                         ms=4, label=name)
                 ax.fill_between(line["x"], mean - np.nan_to_num(std), mean + np.nan_to_num(std),
                                 color=colours[method], alpha=0.18, lw=0)
-            for base, style, name in ((unc, "--", "uncompensated"), (bound, ":", "physical bound (oracle)")):
-                if base is None:
-                    continue
+            for base, (style, name) in ((unc, ("--", "uncompensated")), *((b, BOUNDS[b]) for b in bounds)):
                 xs, ys = baseline_line(summary, key, listed, f"{base}{metric}")
                 if xs:
                     ax.plot(xs, ys, style, color="black", lw=1.4, label=name)
@@ -390,12 +391,13 @@ def draw_gain(summary: list[dict], breaks: list[dict], axis: dict, stem: Path, t
         ax.plot(line["x"], line["mean"], color=colours[method], marker=MARKERS[sizes.index(n) % len(MARKERS)],
                 ms=4, label=name)
         ax.fill_between(line["x"], line["lo"], line["hi"], color=colours[method], alpha=0.18, lw=0)
-    xs, ys = oracle_gain(summary, key, listed)
-    if xs:
-        ax.plot(xs, ys, ":", color="black", lw=1.4, label="feedback oracle")
+    for prefix, (style, name) in BOUNDS.items():
+        xs, ys = bound_gain(summary, key, listed, prefix)
+        if xs:
+            ax.plot(xs, ys, style, color="black", lw=1.4 if style == ":" else 0.9, label=name)
     ax.axhline(BREAK_GAIN_DB, color=FAILURE_COLOUR, lw=1.0, ls="--", label=f"{BREAK_GAIN_DB:g} dB")
     for b in breaks:
-        if b["kind"] in ("gain", "oracle") and b["break_value"] in pos and is_finite(b["gain_db"]):
+        if b["kind"] in ("gain", "optimum") and b["break_value"] in pos and is_finite(b["gain_db"]):
             ax.plot([pos[b["break_value"]]], [b["gain_db"]], marker="*", ms=14, mec="black",
                     color=colours[b["method"]], ls="none", zorder=5,
                     label=f"break: {b['method']}" + (f", n={b['n_train']}" if len(sizes) > 1 else ""))

@@ -30,7 +30,7 @@ import numpy as np
 from compensation.data import frames_root, surface_path
 from compensation.reports import charts as ch
 from compensation.experiments.closed_loop import CAPTURES_DIR
-from compensation.reports.summary import (CONFIDENCE, BREAK_GAIN_DB, ORACLE_MARGIN_DB, is_finite, cell_text,
+from compensation.reports.summary import (CONFIDENCE, BREAK_GAIN_DB, OPTIMUM_MARGIN_DB, is_finite, cell_text,
                                              order_key, axis_keys, attach_per_image, break_columns,
                                              breakpoints, failure_columns, failures, read_results,
                                              main_rows, read_study, summarize, table_text,
@@ -54,7 +54,7 @@ PATCH_COLOURS = ((255, 200, 0), (0, 190, 255))
 def _bench_rows(folder: Path) -> tuple[dict, list[dict]]:
     """A bench folder without ``results.csv``: its Table 1 rows of ``per_setup.csv`` as results
     rows (one point, no axis), the timings and run folders from ``runs/<setup>/<method>-n<N>``,
-    the uncompensated closed loop and the oracle from ``bench.json``."""
+    the uncompensated closed loop, the oracle and the optimum from ``bench.json``."""
     bench = read_json(folder / "bench.json", "bench record")
     table = list(csv.DictReader(io.StringIO(table_text(folder / "per_setup.csv", "bench table"))))
     if table and (missing := [c for c in ("table", "setup", "method", "n_train") if c not in table[0]]):
@@ -79,6 +79,7 @@ def _bench_record(folder: Path, bench: dict, table: list[dict]) -> tuple[dict, l
             metrics = read_json(folder / run / "metrics.json", "run metrics")
         unc_cl = bench.get("uncompensated", {}).get(r["setup"], {}).get("closed_loop", {})
         oracle = (bench.get("oracle", {}).get(r["setup"]) or [{}])[-1]
+        best = bench.get("optimum", {}).get(r["setup"]) or {}
         cl = metrics.get("closed_loop", {})
         num = lambda d, k: float(d[k]) if k in d and d[k] not in ("", None, "nan") else math.nan  # noqa: E731
         row = {"point": 0, "setup": r["setup"], "method": r["method"], "n_train": int(r["n_train"]),
@@ -90,6 +91,7 @@ def _bench_record(folder: Path, bench: dict, table: list[dict]) -> tuple[dict, l
             row[f"cl_{m}"] = num(r, f"CL {label}")
             row[f"cl_unc_{m}"] = num(unc_cl, "deltaE" if m == "deltae" else m)
             row[f"oracle_{m}"] = num(oracle, "deltaE" if m == "deltae" else m)
+            row[f"optimum_{m}"] = num(best, "deltaE" if m == "deltae" else m)
         rows.append(row)
     for failure in read_json(folder / "failures.json", "bench failures").get("failures", []) \
             if (folder / "failures.json").is_file() else []:
@@ -440,8 +442,8 @@ def break_sentence(breaks: list[dict]) -> str:
     level = f"{100 * CONFIDENCE:g} %"
     text = (f"A method breaks at the first value where, with {level} confidence (percentile bootstrap over "
             f"the test images and seeds), its closed-loop PSNR gain over uncompensated is below "
-            f"{BREAK_GAIN_DB:g} dB or its PSNR is more than {ORACLE_MARGIN_DB:g} dB below the feedback "
-            "oracle's.")
+            f"{BREAK_GAIN_DB:g} dB or its PSNR is more than {OPTIMUM_MARGIN_DB:g} dB below the exact "
+            "optimum's (the best projector frames through the noise-free model).")
     held = [f"{b['method']} (n={b['n_train']}) at {b['undertrained']}" if b["n_train"] != "" else
             f"{b['method']} at {b['undertrained']}" for b in breaks if b.get("undertrained")]
     if held:
@@ -512,8 +514,9 @@ def build_report(folder: Path) -> Path:
         if (folder / f"{table}.md").is_file():
             body.append(markdown_html((folder / f"{table}.md").read_text()))
     cols = [*dict.fromkeys(["point", *axes, "method", "n_train"]), "ok/runs", "PSNR", "SSIM", "CL PSNR", "CL SSIM",
-            "unc PSNR", "CL unc PSNR", "oracle PSNR", "fit s", "infer ms"]
-    keys = ("psnr", "ssim", "cl_psnr", "cl_ssim", "unc_psnr", "cl_unc_psnr", "oracle_psnr", "fit_s", "infer_ms")
+            "unc PSNR", "CL unc PSNR", "oracle PSNR", "optimum PSNR", "fit s", "infer ms"]
+    keys = ("psnr", "ssim", "cl_psnr", "cl_ssim", "unc_psnr", "cl_unc_psnr", "oracle_psnr", "optimum_psnr",
+            "fit_s", "infer_ms")
     body.append("<h3>Summary: mean ± std over seeds and setups (summary.csv)</h3>" + html_table(
         cols, [[*(s[c] for c in cols[:-len(keys) - 1]), f"{s['ok']}/{s['runs']}",
                 *(_pm(s, k) for k in keys)] for s in summary]))

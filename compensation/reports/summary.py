@@ -1,7 +1,7 @@
 """What a study or bench folder's ``results.csv`` says, in three CSV files: pure functions over rows.
 
 ``results.csv`` holds one row per (point, setup, method, n_train, seed): the point's axis values,
-the run's ``status`` and its scores (surrogate, closed loop, uncompensated, oracle) and timings
+the run's ``status`` and its scores (surrogate, closed loop, uncompensated, oracle, optimum) and timings
 (:data:`compensation.experiments.jobs.RESULT_COLUMNS`; missing values are empty cells). From it:
 
 ``summary.csv``
@@ -10,7 +10,7 @@ the run's ``status`` and its scores (surrogate, closed loop, uncompensated, orac
 ``breakpoints.csv``
     per method and n_train (and value of a second axis): the first value of the factor where the
     method's closed-loop PSNR gain over uncompensated is below :data:`BREAK_GAIN_DB`, or its PSNR
-    more than :data:`ORACLE_MARGIN_DB` below the feedback oracle's, with :data:`CONFIDENCE`
+    more than :data:`OPTIMUM_MARGIN_DB` below the exact optimum's, with :data:`CONFIDENCE`
     (:func:`bootstrap_interval` over the point's test images and seeds, from ``per_image.csv``);
     a point whose runs were still training (``undertrained``) is not a break (:func:`breakpoints`).
 ``failures.csv``
@@ -33,6 +33,7 @@ METRICS = ("psnr", "rmse", "ssim", "deltae")
 closed loop and for the uncompensated captures."""
 SCORES = (*METRICS, *(f"cl_{m}" for m in METRICS), *(f"unc_{m}" for m in METRICS),
           "cl_unc_psnr", "cl_unc_ssim", "cl_unc_deltae", "oracle_psnr", "oracle_ssim", "oracle_deltae",
+          "optimum_psnr", "optimum_ssim", "optimum_deltae",
           "fit_s", "infer_ms", "reachable_fraction", "target_out_of_reach", "target_out_of_reach_used",
           "target_a", "target_b")
 """The numeric columns of ``results.csv`` (empty cells read as NaN); closed-loop scores compare with
@@ -44,10 +45,11 @@ finite."""
 BREAK_GAIN_DB = 1.0
 """A method breaks where its closed-loop PSNR gain over uncompensated is below this (dB): the
 whole confidence interval of the gain lies below it."""
-ORACLE_MARGIN_DB = 3.0
-"""A method breaks where its closed-loop PSNR is more than this below the feedback oracle's (dB):
-the whole confidence interval of the oracle's lead lies above it. Measured feedback reaches what
-the setup can show; a method this far below it fails at compensation, not at the setup's reach."""
+OPTIMUM_MARGIN_DB = 3.0
+"""A method breaks where its closed-loop PSNR is more than this below the exact optimum's (dB): the
+whole confidence interval of the optimum's lead lies above it. The optimum is what the setup can
+show at best (:mod:`compensation.experiments.optimum`); a method this far below it fails at
+compensation, not at the setup's reach."""
 CONFIDENCE = 0.95
 """Confidence of the break-point intervals: the central percentile bootstrap interval holding this
 share of the resampled means (a break needs the whole interval past its line)."""
@@ -55,9 +57,9 @@ BOOTSTRAP_SAMPLES = 2000
 """Resamples of each percentile bootstrap interval."""
 BOOTSTRAP_SEED = 0
 """Seed of the bootstrap's generator: the same results give the same intervals."""
-INTERVALS = ("gain", "oracle_gap")
+INTERVALS = ("gain", "optimum_gap")
 """The intervals of ``summary.csv`` and ``breakpoints.csv`` (dB; each as ``<name>_db``, ``_lo``,
-``_hi``): the closed-loop PSNR gain over uncompensated, and the oracle's lead over the method
+``_hi``): the closed-loop PSNR gain over uncompensated, and the exact optimum's lead over the method
 (surrogate gain over the uncompensated captures, and no lead, where the folder has no closed loop)."""
 
 
@@ -299,23 +301,23 @@ def bootstrap_interval(values, confidence: float = CONFIDENCE, samples: int = BO
 
 def run_samples(row: dict) -> tuple[list[float], list[float]]:
     """A run's samples of :data:`INTERVALS`: per test image (``per_image``: closed loop against
-    uncompensated and the oracle, image by image) where kept, else the run's own means (its
-    :func:`closed_loop_gain`, the oracle's lead in closed loop only).
+    uncompensated and the optimum, image by image) where kept, else the run's own means (its
+    :func:`closed_loop_gain`, the optimum's lead in closed loop only).
 
     >>> run_samples({"per_image": {"cl_psnr": [20.0, 22.0], "cl_unc_psnr": [18.0, 18.5],
-    ...                            "oracle_psnr": [24.0, 23.0]}})
+    ...                            "optimum_psnr": [24.0, 23.0]}})
     ([2.0, 3.5], [4.0, 1.0])
-    >>> run_samples({"cl_psnr": 20.0, "cl_unc_psnr": 18.0, "oracle_psnr": float("nan")})
+    >>> run_samples({"cl_psnr": 20.0, "cl_unc_psnr": 18.0, "optimum_psnr": float("nan")})
     ([2.0], [nan])
     """
     per = row.get("per_image") or {}
-    cl, unc, oracle = (np.array(per.get(k) or [], float) for k in ("cl_psnr", "cl_unc_psnr", "oracle_psnr"))
+    cl, unc, bound = (np.array(per.get(k) or [], float) for k in ("cl_psnr", "cl_unc_psnr", "optimum_psnr"))
     if cl.size and unc.size == cl.size:
-        return (cl - unc).tolist(), (oracle - cl).tolist() if oracle.size == cl.size else []
+        return (cl - unc).tolist(), (bound - cl).tolist() if bound.size == cl.size else []
     nan = float("nan")
     score, gain, which = closed_loop_gain({f"{k}_mean": row.get(k, nan)
                                            for k in ("cl_psnr", "cl_unc_psnr", "psnr", "unc_psnr")})
-    return [gain], [row.get("oracle_psnr", nan) - score if which == "closed loop" else nan]
+    return [gain], [row.get("optimum_psnr", nan) - score if which == "closed loop" else nan]
 
 
 def summarize(rows: list[dict], axes: list[str]) -> list[dict]:
@@ -407,42 +409,42 @@ def n_train_follows(summary: list[dict], key: str) -> bool:
 
 
 BREAK_COLUMNS = ("method", "n_train", "axis", "break_value", "point", "kind", "gain_db", "gain_lo",
-                 "gain_hi", "oracle_gap_db", "oracle_gap_lo", "oracle_gap_hi", "psnr", "score",
+                 "gain_hi", "optimum_gap_db", "optimum_gap_lo", "optimum_gap_hi", "psnr", "score",
                  "undertrained", "reason")
 """Columns of ``breakpoints.csv`` (the second axis's key comes after ``n_train`` with two axes)."""
-BREAK_KINDS = ("none", "gain", "oracle", "failed", "undertrained")
+BREAK_KINDS = ("none", "gain", "optimum", "failed", "undertrained")
 """Values of ``kind`` in ``breakpoints.csv`` (:func:`breakpoints`)."""
 
 
-def break_test(row: dict, threshold: float = BREAK_GAIN_DB, margin: float = ORACLE_MARGIN_DB) -> tuple[str, str]:
+def break_test(row: dict, threshold: float = BREAK_GAIN_DB, margin: float = OPTIMUM_MARGIN_DB) -> tuple[str, str]:
     """Whether a summary row (:func:`summarize`) is a break, by its intervals: ``gain`` where the
-    gain's whole interval is below ``threshold`` dB, else ``oracle`` where the oracle's lead's whole
+    gain's whole interval is below ``threshold`` dB, else ``optimum`` where the optimum's lead's whole
     interval is above ``margin`` dB, else no break (``""``); and the reason in words.
 
-    >>> break_test({"gain_db": 0.6, "gain_lo": 0.2, "gain_hi": 0.9, "oracle_gap_lo": float("nan")})[0]
+    >>> break_test({"gain_db": 0.6, "gain_lo": 0.2, "gain_hi": 0.9, "optimum_gap_lo": float("nan")})[0]
     'gain'
-    >>> break_test({"gain_db": 0.6, "gain_lo": 0.2, "gain_hi": 1.1, "oracle_gap_db": 5.0,
-    ...             "oracle_gap_lo": 3.5, "oracle_gap_hi": 6.0})
-    ('oracle', "PSNR 5.00 dB below the oracle's (95 % interval 3.50 to 6.00) > 3 dB")
+    >>> break_test({"gain_db": 0.6, "gain_lo": 0.2, "gain_hi": 1.1, "optimum_gap_db": 5.0,
+    ...             "optimum_gap_lo": 3.5, "optimum_gap_hi": 6.0})
+    ('optimum', "PSNR 5.00 dB below the optimum's (95 % interval 3.50 to 6.00) > 3 dB")
     """
     level = f"{100 * CONFIDENCE:g} % interval"
     if row["gain_hi"] < threshold:
         return "gain", (f"PSNR gain over uncompensated {row['gain_db']:.2f} dB ({level} {row['gain_lo']:.2f} "
                         f"to {row['gain_hi']:.2f}) < {threshold:g} dB")
-    if row["oracle_gap_lo"] > margin:
-        return "oracle", (f"PSNR {row['oracle_gap_db']:.2f} dB below the oracle's ({level} "
-                          f"{row['oracle_gap_lo']:.2f} to {row['oracle_gap_hi']:.2f}) > {margin:g} dB")
+    if row["optimum_gap_lo"] > margin:
+        return "optimum", (f"PSNR {row['optimum_gap_db']:.2f} dB below the optimum's ({level} "
+                           f"{row['optimum_gap_lo']:.2f} to {row['optimum_gap_hi']:.2f}) > {margin:g} dB")
     return "", ""
 
 
 def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_DB,
-                margin: float = ORACLE_MARGIN_DB) -> list[dict]:
+                margin: float = OPTIMUM_MARGIN_DB) -> list[dict]:
     """Each method's break point along the study's first axis, per n_train and value of a second axis.
 
     Along the first axis's values (in the study's order), a method breaks at the first value where
     it has no score (every run failed: ``kind`` ``failed``) or :func:`break_test` holds with
-    :data:`CONFIDENCE` (``gain``: gain over uncompensated below ``threshold`` dB; ``oracle``: more
-    than ``margin`` dB below the feedback oracle). A value where the test holds but a run was still
+    :data:`CONFIDENCE` (``gain``: gain over uncompensated below ``threshold`` dB; ``optimum``: more
+    than ``margin`` dB below the exact optimum). A value where the test holds but a run was still
     training at its end (``undertrained`` runs in the summary row) is no break: it is listed in
     ``undertrained`` and the search goes on. A method that never breaks gets ``kind`` ``none``, or
     ``undertrained`` where only such values held, and an empty ``break_value``. Without an axis (a
@@ -454,11 +456,11 @@ def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_
     ...     return {"point": p, "blur": float(p), "method": m, "n_train": 8, "cl_psnr_mean": 20.0,
     ...             "cl_unc_psnr_mean": 20.0 - gain, "undertrained": undertrained,
     ...             "gain_db": gain, "gain_lo": gain - 0.3, "gain_hi": gain + 0.3,
-    ...             "oracle_gap_db": gap, "oracle_gap_lo": gap - 0.5, "oracle_gap_hi": gap + 0.5}
+    ...             "optimum_gap_db": gap, "optimum_gap_lo": gap - 0.5, "optimum_gap_hi": gap + 0.5}
     >>> s = [row(0, "a", 5, 1), row(1, "a", 3, 4), row(2, "a", 0.5, 6)]
     >>> s += [row(0, "b", 4, 2), row(1, "b", 0.5, 2, undertrained=1), row(2, "b", 0.6, 3.2)]
     >>> [(b["method"], b["break_value"], b["kind"], b["undertrained"]) for b in breakpoints(s, study)]
-    [('a', 1.0, 'oracle', ''), ('b', 2.0, 'gain', '1')]
+    [('a', 1.0, 'optimum', ''), ('b', 2.0, 'gain', '1')]
     """
     axes = study.get("axes", [])
     if not axes:
@@ -495,7 +497,7 @@ def breakpoints(summary: list[dict], study: dict, threshold: float = BREAK_GAIN_
                 kind = "undertrained" if held else "none"
                 reason = (f"{len(held)} value(s) would break but runs there were still training at their end: "
                           "undertrained, not broken" if held else
-                          f"no break: gain >= {threshold:g} dB or within {margin:g} dB of the oracle "
+                          f"no break: gain >= {threshold:g} dB or within {margin:g} dB of the optimum "
                           f"with {100 * CONFIDENCE:g} % confidence")
                 row.update(break_value="", point="", kind=kind, psnr=float("nan"), reason=reason,
                            **{f"{n}_{s}": float("nan") for n in INTERVALS for s in ("db", "lo", "hi")})

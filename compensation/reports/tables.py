@@ -315,12 +315,21 @@ def write_tables(out: Path, cfg: BenchConfig, result: BenchResult) -> dict:
             body.append([f"iterative refinement ({k} it., {group[0]['projections']} proj.)", "-"]
                         + ["-"] * (len(METRICS) + len(PAPER_METRICS)) + ["-", len(group)]
                         + [_mean(group, m) for m in CL_COLUMNS[:-1]] + ["-"])
+        if result.optimum:
+            group = list(result.optimum.values())
+            body.append([f"exact optimum ({group[0]['evaluations']} noise-free eval.)", "-"]
+                        + ["-"] * (len(METRICS) + len(PAPER_METRICS)) + ["-", len(group)]
+                        + [_mean(group, m) for m in CL_COLUMNS[:-1]] + ["-"])
         notes = [PAPER_NOTE]
         if cl:
             notes.append(_target_note(cfg, unc))
             reach = 100 * _mean(unc, "reachable_fraction", "closed_loop")
             notes.append(_correlation_note(rows) + f" {reach:.1f} % of the desired pixels are physically "
                          "reachable (mean over simulated setups); CL PSNR reachable scores those pixels only.")
+            if result.optimum:
+                notes.append("Exact optimum: per setup, the projector frames whose captures come closest to "
+                             "the target through the simulator's noise-free model, projected as a "
+                             "method's compensation is; no method can do better but by noise.")
         if cfg.closed_loop and not_simulated:
             notes.append(f"Closed loop left out for {len(not_simulated)} setup(s) that procam did not "
                          f"simulate (no setup.toml, nothing to project through): {', '.join(not_simulated)}.")
@@ -363,6 +372,7 @@ def write_tables(out: Path, cfg: BenchConfig, result: BenchResult) -> dict:
     write_json(out / "failures.json", {"failures": failures})
     write_json(out / "bench.json", {"config": {**asdict(cfg), "methods": list(cfg.methods)},
                                     "registered_methods": sorted(METHODS), "oracle": oracle,
+                                    "optimum": result.optimum,
                                     "uncompensated": uncompensated})
     files["failures"] = out / "failures.json"
     return files
