@@ -256,7 +256,8 @@ def _baseline_key(job: BaselineJob, closed: bool) -> dict:
     digest = hashlib.sha1(meta.read_bytes()).hexdigest() if meta.exists() else None
     return {"dataset": str(Path(job.setup_dir).resolve()), "meta_sha1": digest, "n_test": job.n_test,
             "closed_loop": closed, "procam_version": package_version(),
-            "target": job.target.record() if closed else None}
+            "target": job.target.record() if closed else None,
+            "rows": ["uncompensated", "oracle", "optimum"] if closed else ["uncompensated"]}
 
 
 def baselines(job: BaselineJob) -> dict:
