@@ -27,6 +27,7 @@ from __future__ import annotations
 import itertools
 
 import torch
+from tqdm import tqdm
 
 from compensation.data import SetupData
 from compensation.experiments.closed_loop import (closed_loop_scores, closed_loop_target, project,
@@ -267,9 +268,21 @@ def local_least_squares(jac: torch.Tensor, residual: torch.Tensor, lo: torch.Ten
     return torch.where((cost(d) < cost(start)).reshape(-1, 1, 1, 1), d, start)
 
 
+def evaluation_count(starts: int = 1, rounds: int = ROUNDS, spatial_rounds: int = SPATIAL_ROUNDS) -> int:
+    """Noise-free evaluations of each image by :func:`optimum`: y', the further starts, 5 per round
+    per pixel, and the Jacobian across pixels and 2 per round across pixels.
+
+    >>> evaluation_count()
+    61
+    """
+    across = 3 * (2 * RADIUS + 1) ** 2 + 2 * spatial_rounds if spatial_rounds else 0
+    return 1 + starts + 5 * rounds + across
+
+
 def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
             policy: TargetPolicy = TargetPolicy(), starts: tuple[torch.Tensor, ...] = (),
-            rounds: int = ROUNDS, spatial_rounds: int = SPATIAL_ROUNDS) -> tuple[dict, torch.Tensor]:
+            rounds: int = ROUNDS, spatial_rounds: int = SPATIAL_ROUNDS,
+            progress: bool = False) -> tuple[dict, torch.Tensor]:
     """The best projector frame for each desired image, and its closed-loop scores.
 
     Parameters
@@ -289,6 +302,8 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
         the optimum is never worse than any of them on it.
     rounds, spatial_rounds : int
         Gauss–Newton rounds per pixel, then across pixels.
+    progress : bool
+        Show a progress bar of the model's evaluations.
 
     Returns
     -------
@@ -302,14 +317,18 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
     """
     y, record = closed_loop_target(data, data.test.frames if desired is None else desired, policy)
     noise_free = sim.noise_free()
+    bar = tqdm(total=evaluation_count(len(starts), rounds, spatial_rounds), desc=f"{data.name} · exact optimum", unit="eval", disable=not progress)
+
+    evaluations = 0
 
     def model(frames: torch.Tensor) -> torch.Tensor:
+        nonlocal evaluations
+        bar.update()
         return project(noise_free, frames, seeds.OPTIMUM)
 
     x = _on_grid(y)
     captured = model(x)
     err = _errors(captured, y)
-    evaluations = 1
     for start in starts:
         s = _on_grid(start)
         c = model(s)
@@ -321,13 +340,11 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
     def keep(trial: torch.Tensor, mu: torch.Tensor) -> torch.Tensor:
         """Evaluate a trial step and, per pixel, the step only where it lowered that pixel's error;
         keep for each image the better of the two if it beats the current frame."""
-        nonlocal evaluations
         trial = _on_grid(trial)
         c = model(trial)
         better = ((c - y) ** 2).sum(1, keepdim=True) < ((captured - y) ** 2).sum(1, keepdim=True)
         merged = torch.where(better, trial, x)
         cm = model(merged)
-        evaluations += 2
         use = (_errors(cm, y) <= _errors(c, y))[:, None, None, None]
         trial, c = torch.where(use, merged, trial), torch.where(use, cm, c)
         e = _errors(c, y)
@@ -338,14 +355,12 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
     mu = torch.full_like(err, DAMPING)
     for _ in range(rounds):
         jac = colour_jacobian(model, x, captured)
-        evaluations += 3
         xp = x.permute(0, 2, 3, 1).double()
         d = box_least_squares(jac, (y - captured).permute(0, 2, 3, 1), -xp, 1 - xp, mu)
         mu = keep(x + d.permute(0, 3, 1, 2).float(), mu)
     for k in range(spatial_rounds):
         if k == 0:
             jac = local_jacobian(model, x, captured)
-            evaluations += 3 * (2 * RADIUS + 1) ** 2
             own = jac.sum(dim=-2)  # each pixel's response to a change uniform over its neighbourhood
             mu = torch.full_like(err, DAMPING)
         xp = x.permute(0, 2, 3, 1).double()
@@ -353,6 +368,7 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
         start = box_least_squares(own, residual, -xp, 1 - xp, mu)
         d = local_least_squares(jac, residual, -xp, 1 - xp, mu, start)
         mu = keep(x + d.permute(0, 3, 1, 2).float(), mu)
+    bar.close()
     mask = reachable_mask(data, y)
     scores = closed_loop_scores(project(sim, x, seeds.CLOSED_LOOP), y, mask)
     free = closed_loop_scores(captured, y, mask)
