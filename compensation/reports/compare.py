@@ -23,6 +23,7 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
+from compensation.reports.paired import image_differences
 from compensation.reports.report import load_folder
 from compensation.reports.summary import (CONFIDENCE, axis_keys, bootstrap_interval, cell_text, is_finite,
                                           write_csv)
@@ -148,20 +149,19 @@ def compared_scores(pairs: list[tuple[dict, dict]]) -> list[str]:
     return [*SURROGATE, *both]
 
 
-def image_differences(row_a: dict, row_b: dict, score: str) -> list[float]:
-    """B − A of ``score`` test image by test image (the rows' ``per_image``), the images both
-    scored; none where either run kept no such scores or the two kept different numbers of images.
+def run_image_differences(row_a: dict, row_b: dict, score: str) -> list[float]:
+    """B − A of ``score`` test image by test image
+    (:func:`~compensation.reports.paired.image_differences` of the rows' ``per_image``); none where
+    either run kept no such scores.
 
-    >>> image_differences({"per_image": {"psnr": [20.0, 21.0, 22.0]}},
-    ...                   {"per_image": {"psnr": [20.5, 20.0, float("nan")]}}, "psnr")
+    >>> run_image_differences({"per_image": {"psnr": [20.0, 21.0, 22.0]}},
+    ...                       {"per_image": {"psnr": [20.5, 20.0, float("nan")]}}, "psnr")
     [0.5, -1.0]
-    >>> image_differences({"per_image": {"psnr": [20.0]}}, {}, "psnr")
+    >>> run_image_differences({"per_image": {"psnr": [20.0]}}, {}, "psnr")
     []
     """
     a, b = ((r.get("per_image") or {}).get(score) or [] for r in (row_a, row_b))
-    if len(a) != len(b):
-        return []
-    return [y - x for x, y in zip(a, b) if is_finite(x) and is_finite(y)]
+    return image_differences(b, a)
 
 
 def score_difference(pairs: list[tuple[dict, dict]], score: str) -> dict:
@@ -171,7 +171,7 @@ def score_difference(pairs: list[tuple[dict, dict]], score: str) -> dict:
     ``pairs`` their number. ``lo`` and ``hi`` bound the :data:`CONFIDENCE` percentile bootstrap
     interval (:func:`~compensation.reports.summary.bootstrap_interval`) of the mean difference over
     ``samples`` samples, which ``over`` names: ``images`` where every pair has paired test images
-    (:func:`image_differences`: each image of each pair one sample), else ``runs`` with two pairs or
+    (:func:`run_image_differences`: each image of each pair one sample), else ``runs`` with two pairs or
     more (each pair one sample: setups and seeds), else ``none`` (no interval). ``sampled`` is the
     samples' mean: per image for ``images``, where a run's PSNR is over its images' pooled error.
 
@@ -191,7 +191,7 @@ def score_difference(pairs: list[tuple[dict, dict]], score: str) -> dict:
         return out
     out["a"], out["b"] = (float(np.mean([p[i][score] for p in both])) for i in (0, 1))
     out["diff"] = out["b"] - out["a"]
-    images = [image_differences(a, b, score) for a, b in both]
+    images = [run_image_differences(a, b, score) for a, b in both]
     if all(images):
         samples, out["over"] = [x for per in images for x in per], "images"
     elif len(both) > 1:

@@ -29,22 +29,27 @@ FLIP_SAMPLES = 10000
 """Random sign patterns of the sign-flip test beyond :data:`EXACT_SETUPS` setups."""
 
 
+def image_differences(a: Sequence[float], b: Sequence[float]) -> list[float]:
+    """``a − b`` image by image (test image i of a dataset is the same frame in every run that scored
+    it, so the first images both kept are paired), where both scores are finite.
+
+    >>> image_differences([21.0, 20.0, float("nan")], [20.0, 20.5, 17.0, 18.0])
+    [1.0, -0.5]
+    """
+    return [float(x) - float(y) for x, y in zip(a, b) if is_finite(x) and is_finite(y)]
+
+
 def paired_differences(a: Mapping[str, Sequence[float]],
                        b: Mapping[str, Sequence[float]]) -> list[list[float]]:
     """The per-image differences ``a − b`` grouped by setup: for each setup both hold (in ``a``'s
-    order), the images (by index) where both scores are finite; setups left without any are dropped.
+    order), its :func:`image_differences`; setups left without any are dropped.
 
     >>> paired_differences({"s1": [21.0, 20.0, 19.0], "s2": [float("nan")], "s3": [18.0]},
     ...                    {"s1": [20.0, 20.5], "s2": [17.0]})
     [[1.0, -0.5]]
     """
-    groups = []
-    for setup, scores in a.items():
-        pairs = zip(scores, b.get(setup, ()))
-        diffs = [float(x) - float(y) for x, y in pairs if is_finite(x) and is_finite(y)]
-        if diffs:
-            groups.append(diffs)
-    return groups
+    groups = (image_differences(scores, b.get(setup, ())) for setup, scores in a.items())
+    return [diffs for diffs in groups if diffs]
 
 
 def hierarchical_bootstrap_interval(groups: Sequence[Sequence[float]], confidence: float = CONFIDENCE,
