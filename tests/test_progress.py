@@ -23,12 +23,14 @@ def test_eta_leaves_out_what_is_not_known():
 
 
 def _write_record(job: BaselineJob) -> dict:
-    """A stand-in job: writes its record unless it is there (then it is reused), fails on n_test 0."""
+    """A stand-in job: writes its record unless it is there (then it says it reused it), fails on
+    n_test 0."""
     if job.n_test == 0:
         raise RuntimeError("no test pairs")
-    if not job.record.exists():
-        job.record.write_text(json.dumps({"done": True}))
-    return {}
+    if job.record.exists():
+        return {"reused": True}
+    job.record.write_text(json.dumps({"done": True}))
+    return {"reused": False}
 
 
 def test_reused_jobs_do_not_pull_the_estimate_down(tmp_path, capsys):

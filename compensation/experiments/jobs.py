@@ -106,12 +106,24 @@ def _render_turn(root: Path) -> Iterator[None]:
         os.close(fd)
 
 
+def _stamp(path: Path) -> tuple[int, int] | None:
+    """The identity of a file as written (inode, modification time), None where there is none."""
+    if not path.exists():
+        return None
+    stat = path.stat()
+    return stat.st_ino, stat.st_mtime_ns
+
+
 def render(job: RenderJob) -> dict:
-    """Run a :class:`RenderJob`; returns ``setup`` and ``seconds`` (waiting included)."""
+    """Run a :class:`RenderJob`; returns ``setup``, ``seconds`` (waiting included) and ``reused``
+    (the dataset was finished before: its ``meta.json``, written last, is the one that was there)."""
     t0 = time.perf_counter()
+    meta = Path(job.root) / job.setup.name / META_FILE
+    before = _stamp(meta)
     with _render_turn(Path(job.root)):
         write_setup(Path(job.root), job.setup, job.spec, progress=job.progress, raw=job.raw)
-    return {"setup": job.setup.name, "seconds": round(time.perf_counter() - t0, 3)}
+    return {"setup": job.setup.name, "seconds": round(time.perf_counter() - t0, 3),
+            "reused": before is not None and _stamp(meta) == before}
 
 
 @dataclass(frozen=True)
@@ -208,7 +220,8 @@ def add_closed_loop(run_dir: Path, setup_dir: Path, n_test: int, policy: TargetP
 
 def fit(job: FitJob) -> dict:
     """Run a :class:`FitJob`; returns ``metrics`` (the run's ``metrics.json``), ``trained``
-    (False when a finished run was reused), the ``official_tag`` of its outputs and ``run`` (its
+    (False when a finished run was reused), ``reused`` (nothing was done: neither training nor
+    closed loop nor official outputs), the ``official_tag`` of its outputs and ``run`` (its
     folder)."""
     setup_dir, run_dir = Path(job.setup_dir), Path(job.run_dir)
     metrics = reusable(run_dir, job.cfg, setup_dir)
@@ -216,12 +229,16 @@ def fit(job: FitJob) -> dict:
     if trained:
         metrics = train_run(setup_dir, job.cfg, run_dir, job.progress, overwrite=True)
     tag = official_tag(job.cfg, job.pretrained)
+    worked = trained
     if job.official is not None and (trained or not official_complete(job.official, tag, metrics["n_test"])):
         data = load_setup_data(setup_dir, 1, metrics["n_test"])
         write_official_outputs(run_dir, data, Path(job.official), tag)
+        worked = True
     if job.closed_loop and simulated(setup_dir) and (trained or not _closed_loop_done(run_dir, metrics, job.target)):
         metrics = add_closed_loop(run_dir, setup_dir, metrics["n_test"], job.target)
-    return {"metrics": metrics, "trained": trained, "official_tag": tag, "run": str(run_dir)}
+        worked = True
+    return {"metrics": metrics, "trained": trained, "reused": not worked, "official_tag": tag,
+            "run": str(run_dir)}
 
 
 @dataclass(frozen=True)
@@ -266,7 +283,7 @@ def baselines(job: BaselineJob) -> dict:
     :func:`~compensation.experiments.closed_loop.uncompensated`), ``oracle`` (the rows of
     :func:`~compensation.experiments.closed_loop.iterative_refinement`, or None), ``optimum`` (the
     scores of :func:`~compensation.experiments.optimum.optimum` started from the oracle's last
-    frames, or None) and ``size`` ([height, width])."""
+    frames, or None), ``size`` ([height, width]) and ``reused`` (the kept record was returned)."""
     setup_dir = Path(job.setup_dir)
     closed = job.closed_loop and simulated(setup_dir)
     key = _baseline_key(job, closed)
@@ -274,7 +291,7 @@ def baselines(job: BaselineJob) -> dict:
         try:
             kept = read_json(job.record, "baseline record")
             if kept.get("key") == key:
-                return kept["result"]
+                return {**kept["result"], "reused": True}
         except ProcamError:
             pass
     data = load_setup_data(setup_dir, n_train=1, n_test=job.n_test)
@@ -299,7 +316,7 @@ def baselines(job: BaselineJob) -> dict:
     result = {"uncompensated": scores, "oracle": oracle, "optimum": best, "size": list(data.size)}
     if job.record is not None:
         write_json(job.record, {"key": key, "result": result})
-    return result
+    return {**result, "reused": False}
 
 
 def _loss_grew(run_dir: Path) -> bool:

@@ -26,7 +26,6 @@ from compensation.experiments.targets import TargetPolicy
 from compensation.training.config import TrainConfig
 from sim.dataset import FrameSpec
 from sim.errors import ProcamError
-from sim.layout import META_FILE
 from sim.setup import Setup
 
 
@@ -165,24 +164,6 @@ def duration(seconds: float | None) -> str:
     return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60} min"
 
 
-def _output(job) -> Path | None:
-    """The file a job writes only when it does work (a render's ``meta.json``, a fit's
-    ``metrics.json``, a baseline's record): a job that leaves it as it was reused finished work."""
-    if isinstance(job, RenderJob):
-        return Path(job.root) / job.setup.name / META_FILE
-    if isinstance(job, FitJob):
-        return Path(job.run_dir) / "metrics.json"
-    return job.record
-
-
-def _stamp(path: Path | None) -> tuple[int, int] | None:
-    """The identity of a file as written (inode, modification time), None where there is none."""
-    if path is None or not path.exists():
-        return None
-    stat = path.stat()
-    return stat.st_ino, stat.st_mtime_ns
-
-
 class JobCount:
     """The overall progress of a plan: at the start and after each job, one line on stderr with the jobs of each
     kind (:data:`KINDS`) done of all, how many were reused (finished earlier: no work) and failed
@@ -232,14 +213,12 @@ class JobCount:
 
     def run(self, executor, batch: Sequence[Task]) -> list[dict]:
         """``executor.run(batch)``, counting each job as it finishes."""
-        before = [_stamp(_output(t.job)) for t in batch]
-
         def finished(i: int, record: dict, seconds: float) -> None:
             kind = KINDS[type(batch[i].job)]
             self.done[kind] += 1
             if not record["ok"]:
                 self.failed += 1
-            elif before[i] is not None and _stamp(_output(batch[i].job)) == before[i]:
+            elif record.get("reused"):  # the job's own word: it found its work finished
                 self.reused += 1
             else:
                 self.seconds[kind].append(seconds)
