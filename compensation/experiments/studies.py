@@ -67,6 +67,7 @@ from compensation.experiments.targets import DEFAULT_OUT_OF_REACH, TargetPolicy
 from compensation.methods import applicable, get_method, make_config, option_owners
 from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
+from sim.descriptors import DESCRIPTORS
 from sim.errors import ProcamError
 from sim.seeds import SEED_MAX
 from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
@@ -455,12 +456,35 @@ def expand(study: Study) -> Plan:
     return Plan(points, setups, tuple(runs))
 
 
+def physical_values(study: Study, plan: Plan, axis: Axis) -> dict | None:
+    """What an axis's values amount to physically (:data:`sim.descriptors.DESCRIPTORS`): ``label``,
+    ``unit`` and ``values`` (one per axis value, from the setup of the first run at that value at
+    the study's size; None where no run has it), or None for a key without a descriptor."""
+    descriptor = DESCRIPTORS.get(axis.key)
+    if descriptor is None:
+        return None
+    values = []
+    for value in axis.values:
+        run = next((r for r in plan.runs if r.point.values.get(axis.key) == value), None)
+        try:
+            values.append(None if run is None else
+                          round(descriptor.value(plan.setups[run.setup], tuple(study.size)), 4))
+        except ProcamError:  # a setup that cannot be rendered: its point fails when rendered
+            values.append(None)
+    return {"label": descriptor.label, "unit": descriptor.unit, "values": values}
+
+
 def study_record(study: Study, plan: Plan, kind: str = "study") -> dict:
-    """The contents of ``study.json`` (without ``versions`` and ``created``)."""
+    """The contents of ``study.json`` (without ``versions`` and ``created``); an axis whose key sets
+    a physical quantity carries it (:func:`physical_values`)."""
     sizes = sorted({r.n_train for r in plan.runs})
+    axes = []
+    for a in study.axes:
+        axes.append({"key": a.key, "values": list(a.values), "label": a.label, "unit": a.unit})
+        if (physical := physical_values(study, plan, a)) is not None:
+            axes[-1]["physical"] = physical
     return {"name": study.name, "question": study.question, "kind": kind, "base": study.base,
-            "axes": [{"key": a.key, "values": list(a.values), "label": a.label, "unit": a.unit}
-                     for a in study.axes],
+            "axes": axes,
             "methods": list(study.methods), "seeds": list(study.seeds), "n_train": sizes,
             "n_test": study.n_test, "size": list(study.size), "profile": study.profile,
             "render_seeds": study.render_seeds, "only": list(study.only), "target": study.target.record(),

@@ -325,29 +325,50 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
                             color=colours[b["method"]], ls="none", zorder=5,
                             label=f"break: {b['method']}" + (f", n={b['n_train']}" if len(sizes) > 1 else ""))
             _draw_failures(ax, fails, key, pos, score)
-            _format_x(ax, pos, numeric, log_x, xlabel)
+            _format_x(ax, pos, numeric, log_x, xlabel, axis)
     return _finish(plt, fig, axes, stem, title)
 
 
 def _x_axis(axis: dict, summary: list[dict]) -> tuple[dict, bool, bool, str]:
-    """Positions of the factor's values, whether numeric, whether on a log axis, and its label."""
+    """Positions of the factor's values, whether numeric, whether on a log axis, and its label
+    (with the physical quantity of its ticks' second line, where the axis records one)."""
     key = axis["key"]
     pos, numeric = axis_positions([r[key] for r in summary], axis["values"])
     log_x = numeric and min(pos.values()) > 0 and max(pos.values()) >= LOG_SPAN * min(pos.values())
     label = (axis.get("label") or key) + (f" ({axis['unit']})" if axis.get("unit") else "")
+    if physical := axis.get("physical"):
+        label += f"; below it: {physical['label']} ({physical['unit']})"
     return pos, numeric, log_x, label
 
 
-def _format_x(ax, pos: dict, numeric: bool, log_x: bool, xlabel: str) -> None:
-    """Ticks at the factor's values (categorical, or a log axis), its label and a grid."""
+def tick_labels(axis: dict, pos: dict) -> list[str]:
+    r"""The factor's tick labels in position order: each value, and below it the physical quantity
+    it amounts to where the axis records one (``physical`` of ``study.json``).
+
+    >>> axis = {"values": [0.0, 0.02], "physical": {"label": "blur", "unit": "px", "values": [0.0, 0.639]}}
+    >>> tick_labels(axis, {0.0: 0.0, 0.02: 0.02})
+    ['0\n0', '0.02\n0.639']
+    """
+    physical = dict(zip(axis.get("values", []), (axis.get("physical") or {}).get("values", [])))
+    labels = []
+    for value in sorted(pos, key=pos.get):
+        text = f"{value:g}" if isinstance(value, (int, float)) else str(value)
+        if physical.get(value) is not None:
+            text += f"\n{physical[value]:.3g}"
+        labels.append(text)
+    return labels
+
+
+def _format_x(ax, pos: dict, numeric: bool, log_x: bool, xlabel: str, axis: dict) -> None:
+    """Ticks at the factor's values (categorical, or a log axis; :func:`tick_labels`), its label
+    and a grid."""
     from matplotlib.ticker import NullFormatter
 
-    if not numeric:
-        ax.set_xticks(list(pos.values()), [str(v) for v in pos])
-    elif log_x:
+    if log_x:
         ax.set_xscale("log")
-        ax.set_xticks(list(pos.values()), [f"{v:g}" for v in pos])
         ax.xaxis.set_minor_formatter(NullFormatter())
+    if log_x or not numeric or axis.get("physical"):
+        ax.set_xticks(sorted(pos.values()), tick_labels(axis, pos))
     ax.set_xlabel(xlabel, fontsize=9)
     ax.grid(alpha=0.3)
 
@@ -410,7 +431,7 @@ def draw_gain(summary: list[dict], breaks: list[dict], axis: dict, stem: Path, t
         reach.text(0.5, 0.5, "not recorded", ha="center", va="center", transform=reach.transAxes)
     reach.set_ylim(0, 1.02)
     reach.set_ylabel("reachable fraction")
-    _format_x(reach, pos, numeric, log_x, xlabel)
+    _format_x(reach, pos, numeric, log_x, xlabel, axis)
     return _finish(plt, fig, axes, stem, title)
 
 

@@ -115,6 +115,15 @@ def read_study(folder: Path) -> dict:
     if not isinstance(axes, list) or not all(isinstance(a, dict) and "key" in a and isinstance(
             a.get("values"), list) for a in axes):
         raise ProcamError(f"{path}: 'axes' must be a list of {{key, values, ...}} tables")
+    for a in axes:
+        physical = a.get("physical")
+        if physical is not None and not (
+                isinstance(physical, dict) and isinstance(physical.get("label"), str)
+                and isinstance(physical.get("unit"), str) and isinstance(physical.get("values"), list)
+                and len(physical["values"]) == len(a["values"])
+                and all(v is None or is_finite(v) for v in physical["values"])):
+            raise ProcamError(f"{path}: axis {a['key']!r}: 'physical' must be {{label, unit, values}} with "
+                              "one number (or null) per axis value")
     for key, kind in STUDY_TYPES.items():
         if study.get(key) is not None and not isinstance(study[key], kind):
             raise ProcamError(f"{path}: {key!r} = {study[key]!r}: expected a JSON "
