@@ -381,6 +381,27 @@ def test_lamp_scales_captures_but_not_the_calibration():
         np.testing.assert_allclose(sim.linear(frame, stream, index), want, rtol=1e-5, atol=1e-7)
 
 
+def test_the_noise_free_model_keeps_the_drift_and_drops_every_random_draw():
+    """Simulator.noise_free: the camera's noise and the lamp's flicker off (two captures of the same
+    frame in different streams agree bit for bit at the transport level), the test-time drift kept
+    (a deterministic gain), and the camera's expected value: the mean of noisy captures."""
+    keys = {"resolution": [16, 16], "flicker": 0.1, "drift": 0.2}
+    setup = tiny_setup(projector=keys, camera={"resolution": [16, 16], "shot_noise": 2e-4, "read_noise": 4e-3},
+                       ambient={"radiance": [0.05, 0.05, 0.05]}, render={"fidelity": "transport"})
+    sim = Simulator(setup, (16, 16))
+    model = sim.noise_free()
+    frame = np.full((1, 16, 16, 3), 150, np.uint8)
+    a, b = model.capture(frame, seeds.TEST), model.capture(frame, seeds.OPTIMUM)
+    np.testing.assert_array_equal(a, b)
+    assert model.setup.camera.shot_noise == 0 and model.setup.camera.read_noise == 0
+    assert (model.setup.projector.flicker, model.setup.projector.drift) == (0.0, 0.2)
+    assert (sim.setup.projector.flicker, sim.setup.camera.shot_noise) == (0.1, 2e-4)  # the original as it was
+    steady = Simulator(replace(setup, projector=replace(setup.projector, flicker=0.0)), (16, 16))
+    noisy = np.stack([steady.capture(frame, seeds.CLOSED_LOOP + 1 + k)[0] for k in range(24)]).astype(float)
+    assert abs(noisy.mean() - a.astype(float).mean()) < 0.5  # 8-bit levels: the expected capture
+    assert noisy.std(axis=0).mean() > 0.5  # while each noisy capture differs
+
+
 # ----------------------------------------------------------------------------------- keys
 
 @pytest.mark.parametrize("key, value, expected", [
