@@ -17,8 +17,9 @@ stages:
    blur, scattering and the camera's resampling couple), the step solved by projected accelerated
    gradient (:func:`local_least_squares`) from the per-pixel one.
 
-A step is kept for an image only where it lowers that image's error on F, so the result never scores
-below its start. The frames found are then projected once more through the real (noisy) setup, as
+Each step is tried as it is and kept only at the pixels whose error it lowered; an image takes the
+better of the two only where that lowers its error on F, so the result never scores below its
+start. The frames found are then projected once more through the real (noisy) setup, as
 every method's compensation is: that is the row compared with the methods; the noise-free scores
 are kept beside it.
 """
