@@ -12,7 +12,7 @@ from compensation.data import load_setup_data
 from compensation.experiments.closed_loop import (closed_loop_target, iterative_refinement, project,
                                                  simulator_for)
 from compensation.experiments.optimum import (_apply, _offsets, box_least_squares, colour_jacobian,
-                                             local_jacobian, local_least_squares, optimum)
+                                             evaluation_count, local_jacobian, local_least_squares, optimum)
 from compensation.experiments.targets import TargetPolicy
 from compensation.methods import METHODS, make_config
 from compensation.scores.metrics import delta_e_per_image, psnr_per_image, ssim_per_image
@@ -143,6 +143,7 @@ def test_the_optimum_beats_the_oracle_and_every_method_on_every_image(textured, 
     model = sim.noise_free()
     _, oracle = iterative_refinement(data, sim, policy=policy, return_frames=True)
     scores, best = optimum(data, sim, policy=policy, starts=(oracle,))
+    assert scores["evaluations"] == evaluation_count(starts=1) == 61
     candidates = {"oracle": oracle, "y' as is": y}
     for name in ("tps", "nayar"):
         method = METHODS[name]()

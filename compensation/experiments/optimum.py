@@ -318,12 +318,13 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
     """
     y, record = closed_loop_target(data, data.test.frames if desired is None else desired, policy)
     noise_free = sim.noise_free()
-    bar = tqdm(total=evaluation_count(len(starts), rounds, spatial_rounds), desc=f"{data.name} · exact optimum", unit="eval", disable=not progress)
-
+    bar = tqdm(total=evaluation_count(len(starts), rounds, spatial_rounds), desc=f"{data.name} · exact optimum",
+               unit="eval", disable=not progress)
     evaluations = 0
 
     def model(frames: torch.Tensor) -> torch.Tensor:
         nonlocal evaluations
+        evaluations += 1
         bar.update()
         return project(noise_free, frames, seeds.OPTIMUM)
 
@@ -334,7 +335,6 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
         s = _on_grid(start)
         c = model(s)
         e = _errors(c, y)
-        evaluations += 1
         take = e < err
         x[take], captured[take], err[take] = s[take], c[take], e[take]
 
