@@ -4,8 +4,9 @@ Render the shipped default setup at the quick profile, fit CompenNet and TPS, sc
 surrogate benchmark and in closed loop (their compensation of the target y' projected back through
 the simulated setup and scored against y'; y' is the desired image mapped by the target policy,
 :mod:`~compensation.experiments.targets`), beside the iterative-feedback oracle, the exact optimum
-(:mod:`~compensation.experiments.optimum`) and the reachable share of y''s pixels; print the table, headed by the policy and its map, and write a figure:
-surface, uncompensated, each method's compensated capture, target. The folder is a
+(:mod:`~compensation.experiments.optimum`) and the reachable share of y''s pixels; print the
+table, headed by the policy and its map, and write a figure: surface, uncompensated, each method's
+compensated capture, target. The folder is a
 one-point bench (``study.json``, ``results.csv``, each run's closed-loop captures), and the demo ends
 by writing its HTML report (``report.html``, :mod:`compensation.reports.report`).
 """
