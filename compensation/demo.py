@@ -190,7 +190,7 @@ def run_demo(out: Path, progress: bool = True, target: TargetPolicy = TargetPoli
     lines.append(_row(f"oracle: feedback, {ORACLE_ITERATIONS} it. ({ORACLE_ITERATIONS + 1} projections)",
                       results["oracle"][-1]))
     results["optimum"], _ = optimum(data, sim, policy=target, starts=(frames,), progress=progress)
-    lines.append(_row(f"exact optimum ({results['optimum']['evaluations']} noise-free eval.)",
+    lines.append(_row(f"exact optimum ({results['optimum']['evaluations']:g} noise-free eval.)",
                       results["optimum"]))
     write_png(out / "demo.png", figure(data.surface, as_is[:N_FIGURE], captures, y_target, mask))
     write_json(out / "demo.json", results)

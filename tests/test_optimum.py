@@ -158,3 +158,22 @@ def test_the_optimum_beats_the_oracle_and_every_method_on_every_image(textured, 
         assert np.all(ours["deltaE"] <= theirs["deltaE"] + 1e-3), name
     # better than the oracle's frames by a margin a broken solver would miss
     assert np.mean(ours["psnr"]) > np.mean(_per_image(model, oracle, y)["psnr"]) + 0.3
+
+
+@pytest.mark.slow
+def test_the_stage_across_pixels_runs_beyond_its_pilot_only_where_it_pays(textured, monkeypatch):
+    """Two pilot images: on the textured setup (the camera's resampling couples neighbours) the stage
+    pays on them and runs on the other four too; asked for more than it can give, it stops at them."""
+    import compensation.experiments.optimum as module
+
+    _, data, sim = textured
+    monkeypatch.setattr(module, "PILOT_IMAGES", 2)
+    scores, _ = optimum(data, sim, policy=TargetPolicy("global"))
+    record = scores["across_pixels"]
+    assert record["pilot_images"] == 2 and record["pilot_gain_db"] >= module.PILOT_GAIN_DB and record["applied"]
+    assert scores["evaluations"] == evaluation_count(starts=0)
+    monkeypatch.setattr(module, "PILOT_GAIN_DB", 100.0)
+    scores, _ = optimum(data, sim, policy=TargetPolicy("global"))
+    assert not scores["across_pixels"]["applied"]
+    per_pixel, across = 1 + 5 * module.ROUNDS, 3 * 9 + 2 * module.SPATIAL_ROUNDS
+    assert scores["evaluations"] == pytest.approx(per_pixel + across * 2 / 6, abs=0.05)

@@ -78,7 +78,7 @@ def _check_same_hardware(path: Path, meta: dict, sim: Simulator) -> None:
                            + "; ".join(mismatch))
 
 
-def project(sim: Simulator, frames: torch.Tensor, stream: int) -> torch.Tensor:
+def project(sim: Simulator, frames: torch.Tensor, stream: int, start: int = 0) -> torch.Tensor:
     """Send projector frames through the simulated setup.
 
     Parameters
@@ -89,6 +89,8 @@ def project(sim: Simulator, frames: torch.Tensor, stream: int) -> torch.Tensor:
         float32 (N, 3, H, W) in [0, 1]; rounded to 8 bits as a projector input is.
     stream : int
         Seed stream of these captures (fresh noise per stream and frame).
+    start : int
+        Index in the stream of the first frame (frame k is capture ``start + k``).
 
     Returns
     -------
@@ -96,7 +98,7 @@ def project(sim: Simulator, frames: torch.Tensor, stream: int) -> torch.Tensor:
         Captures in the canonical view, float32 (N, 3, H, W) in [0, 1].
     """
     stack = to_uint8(frames.permute(0, 2, 3, 1).cpu().numpy())
-    caps = sim.capture(stack, stream)
+    caps = sim.capture(stack, stream, start)
     return torch.from_numpy(to_float(caps)).permute(0, 3, 1, 2).contiguous()
 
 

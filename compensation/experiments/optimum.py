@@ -15,7 +15,8 @@ stages:
 2. across pixels (:data:`SPATIAL_ROUNDS` rounds): each pixel's response to each input channel of
    every pixel within :data:`RADIUS` (:func:`local_jacobian`, 3·(2·RADIUS + 1)² evaluations: what
    blur, scattering and the camera's resampling couple), the step solved by projected accelerated
-   gradient (:func:`local_least_squares`) from the per-pixel one.
+   gradient (:func:`local_least_squares`) from the per-pixel one; first on :data:`PILOT_IMAGES`
+   images, then on the others only where it paid there.
 
 Each step is tried as it is and kept only at the pixels whose error it lowered; an image takes the
 better of the two only where that lowers its error on F, so the result never scores below its
@@ -26,6 +27,7 @@ are kept beside it.
 from __future__ import annotations
 
 import itertools
+import math
 
 import torch
 from tqdm import tqdm
@@ -54,6 +56,14 @@ evaluations per round besides)."""
 RADIUS = 1
 """Neighbourhood (pixels, Chebyshev) of the Jacobian across pixels. A pixel's response to inputs
 farther away is attributed to the nearest input of the probe lattice (stride 2·RADIUS + 1)."""
+PILOT_IMAGES = 8
+"""The stage across pixels runs first on this many images (the first ones), and on the others only
+where it lowered the pilot images' error by at least :data:`PILOT_GAIN_DB`: a setup whose pixels
+are seen alone, or whose remaining error the neighbourhood cannot reach, is spared its 29
+evaluations per image."""
+PILOT_GAIN_DB = 0.1
+"""Gain (dB, of the pilot images' mean squared error) that makes the stage across pixels run on
+every image."""
 SOLVER_ITERATIONS = 100
 """Projected accelerated-gradient iterations of each step across pixels."""
 
@@ -270,8 +280,9 @@ def local_least_squares(jac: torch.Tensor, residual: torch.Tensor, lo: torch.Ten
 
 
 def evaluation_count(starts: int = 1, rounds: int = ROUNDS, spatial_rounds: int = SPATIAL_ROUNDS) -> int:
-    """Noise-free evaluations of each image by :func:`optimum`: y', the further starts, 5 per round
-    per pixel, and the Jacobian across pixels and 2 per round across pixels.
+    """Noise-free evaluations of each image by :func:`optimum` at most: y', the further starts, 5 per
+    round per pixel, and the Jacobian across pixels and 2 per round across pixels (on the pilot
+    images only, where the stage across pixels does not pay: :data:`PILOT_IMAGES`).
 
     >>> evaluation_count()
     61
@@ -311,22 +322,25 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
     dict
         The closed-loop scores of the frames projected through ``sim`` (as
         :func:`~compensation.experiments.closed_loop.closed_loop`'s), ``noise_free`` (the same
-        scores of their captures on the model), ``evaluations`` (model evaluations per image),
-        ``rounds`` and ``target`` (the policy and its map).
+        scores of their captures on the model), ``evaluations`` (model evaluations per image, the
+        mean), ``rounds``, ``spatial_rounds``, ``across_pixels`` (``pilot_images``,
+        ``pilot_gain_db``, ``applied``: whether the stage across pixels ran on every image; None
+        without it) and ``target`` (the policy and its map).
     torch.Tensor
         The frames, float32 (N, 3, H, W) on the 8-bit grid.
     """
     y, record = closed_loop_target(data, data.test.frames if desired is None else desired, policy)
     noise_free = sim.noise_free()
+    n = len(y)
     bar = tqdm(total=evaluation_count(len(starts), rounds, spatial_rounds), desc=f"{data.name} · exact optimum",
                unit="eval", disable=not progress)
-    evaluations = 0
+    counts = torch.zeros(n)
 
-    def model(frames: torch.Tensor) -> torch.Tensor:
-        nonlocal evaluations
-        evaluations += 1
-        bar.update()
-        return project(noise_free, frames, seeds.OPTIMUM)
+    def model(frames: torch.Tensor, first: int = 0) -> torch.Tensor:
+        """F of images ``first`` … (each always with its own index: its own samples)."""
+        counts[first:first + len(frames)] += 1
+        bar.update(len(frames) / n)
+        return project(noise_free, frames, seeds.OPTIMUM, first)
 
     x = _on_grid(y)
     captured = model(x)
@@ -338,20 +352,35 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
         take = e < err
         x[take], captured[take], err[take] = s[take], c[take], e[take]
 
-    def keep(trial: torch.Tensor, mu: torch.Tensor) -> torch.Tensor:
-        """Evaluate a trial step and, per pixel, the step only where it lowered that pixel's error;
-        keep for each image the better of the two if it beats the current frame."""
+    def keep(trial: torch.Tensor, mu: torch.Tensor, part: slice = slice(0, n)) -> torch.Tensor:
+        """Evaluate a trial step of the images ``part`` and, per pixel, the step only where it
+        lowered that pixel's error; keep for each image the better of the two if it beats its
+        current frame. Returns the images' new damping."""
         trial = _on_grid(trial)
-        c = model(trial)
-        better = ((c - y) ** 2).sum(1, keepdim=True) < ((captured - y) ** 2).sum(1, keepdim=True)
-        merged = torch.where(better, trial, x)
-        cm = model(merged)
-        use = (_errors(cm, y) <= _errors(c, y))[:, None, None, None]
+        now, target = captured[part], y[part]
+        c = model(trial, part.start)
+        better = ((c - target) ** 2).sum(1, keepdim=True) < ((now - target) ** 2).sum(1, keepdim=True)
+        merged = torch.where(better, trial, x[part])
+        cm = model(merged, part.start)
+        use = (_errors(cm, target) <= _errors(c, target))[:, None, None, None]
         trial, c = torch.where(use, merged, trial), torch.where(use, cm, c)
-        e = _errors(c, y)
-        take = e < err
-        x[take], captured[take], err[take] = trial[take], c[take], e[take]
+        e = _errors(c, target)
+        take = e < err[part]
+        idx = torch.arange(part.start, part.stop)[take]
+        x[idx], captured[idx], err[idx] = trial[take], c[take], e[take]
         return torch.where(take, mu / 3, mu * 4)
+
+    def across_pixels(part: slice) -> None:
+        """The second stage on the images ``part``."""
+        jac = local_jacobian(lambda frames: model(frames, part.start), x[part], captured[part])
+        own = jac.sum(dim=-2)  # each pixel's response to a change uniform over its neighbourhood
+        mu = torch.full((part.stop - part.start,), DAMPING, dtype=torch.float64)
+        for _ in range(spatial_rounds):
+            xp = x[part].permute(0, 2, 3, 1).double()
+            residual = (y[part] - captured[part]).permute(0, 2, 3, 1).double()
+            start = box_least_squares(own, residual, -xp, 1 - xp, mu)
+            d = local_least_squares(jac, residual, -xp, 1 - xp, mu, start)
+            mu = keep(x[part] + d.permute(0, 3, 1, 2).float(), mu, part)
 
     mu = torch.full_like(err, DAMPING)
     for _ in range(rounds):
@@ -359,22 +388,24 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
         xp = x.permute(0, 2, 3, 1).double()
         d = box_least_squares(jac, (y - captured).permute(0, 2, 3, 1), -xp, 1 - xp, mu)
         mu = keep(x + d.permute(0, 3, 1, 2).float(), mu)
-    for k in range(spatial_rounds):
-        if k == 0:
-            jac = local_jacobian(model, x, captured)
-            own = jac.sum(dim=-2)  # each pixel's response to a change uniform over its neighbourhood
-            mu = torch.full_like(err, DAMPING)
-        xp = x.permute(0, 2, 3, 1).double()
-        residual = (y - captured).permute(0, 2, 3, 1).double()
-        start = box_least_squares(own, residual, -xp, 1 - xp, mu)
-        d = local_least_squares(jac, residual, -xp, 1 - xp, mu, start)
-        mu = keep(x + d.permute(0, 3, 1, 2).float(), mu)
+    across = None
+    if spatial_rounds:
+        pilot = slice(0, min(PILOT_IMAGES, n))
+        before = float(err[pilot].mean())
+        across_pixels(pilot)
+        after = float(err[pilot].mean())
+        gain = 10 * math.log10(before / after) if after > 0 else (0.0 if before == 0 else math.inf)
+        applied = gain >= PILOT_GAIN_DB
+        if applied and pilot.stop < n:
+            across_pixels(slice(pilot.stop, n))
+        across = {"pilot_images": pilot.stop, "pilot_gain_db": round(gain, 4), "applied": applied}
     bar.close()
     mask = reachable_mask(data, y)
     scores = closed_loop_scores(project(sim, x, seeds.CLOSED_LOOP), y, mask)
     free = closed_loop_scores(captured, y, mask)
     scores.update(noise_free={k: free[k] for k in ("psnr", "rmse", "ssim", "deltaE", "psnr_reachable",
                                                   "psnr_per_image")},
-                  evaluations=evaluations, rounds=rounds, spatial_rounds=spatial_rounds,
+                  evaluations=round(float(counts.mean()), 1), rounds=rounds, spatial_rounds=spatial_rounds,
+                  across_pixels=across,
                   projections=int(y.shape[0]), target=record)
     return scores, x
