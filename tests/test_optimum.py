@@ -168,10 +168,13 @@ def test_the_stage_across_pixels_runs_beyond_its_pilot_only_where_it_pays(textur
 
     _, data, sim = textured
     monkeypatch.setattr(module, "PILOT_IMAGES", 2)
-    scores, _ = optimum(data, sim, policy=TargetPolicy("global"))
+    scores, frames = optimum(data, sim, policy=TargetPolicy("global"))
     record = scores["across_pixels"]
     assert record["pilot_images"] == 2 and record["pilot_gain_db"] >= module.PILOT_GAIN_DB and record["applied"]
     assert scores["evaluations"] == evaluation_count(starts=0)
+    monkeypatch.setattr(module, "CHUNK", 2)  # the rest in two chunks: each image is solved alone
+    chunked, again = optimum(data, sim, policy=TargetPolicy("global"))
+    assert torch.equal(again, frames) and chunked["noise_free"]["psnr"] == scores["noise_free"]["psnr"]
     monkeypatch.setattr(module, "PILOT_GAIN_DB", 100.0)
     scores, _ = optimum(data, sim, policy=TargetPolicy("global"))
     assert not scores["across_pixels"]["applied"]

@@ -64,6 +64,9 @@ evaluations per image."""
 PILOT_GAIN_DB = 0.1
 """Gain (dB, of the pilot images' mean squared error) that makes the stage across pixels run on
 every image."""
+CHUNK = 16
+"""Images the stage across pixels holds at once: its Jacobian takes 81 float64 values per pixel
+(680 MB for 16 images at 256²)."""
 SOLVER_ITERATIONS = 100
 """Projected accelerated-gradient iterations of each step across pixels."""
 
@@ -390,14 +393,14 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
         mu = keep(x + d.permute(0, 3, 1, 2).float(), mu)
     across = None
     if spatial_rounds:
-        pilot = slice(0, min(PILOT_IMAGES, n))
+        pilot = slice(0, min(PILOT_IMAGES, CHUNK, n))
         before = float(err[pilot].mean())
         across_pixels(pilot)
         after = float(err[pilot].mean())
         gain = 10 * math.log10(before / after) if after > 0 else (0.0 if before == 0 else math.inf)
         applied = gain >= PILOT_GAIN_DB
-        if applied and pilot.stop < n:
-            across_pixels(slice(pilot.stop, n))
+        for first in range(pilot.stop, n if applied else pilot.stop, CHUNK):
+            across_pixels(slice(first, min(first + CHUNK, n)))
         across = {"pilot_images": pilot.stop, "pilot_gain_db": round(gain, 4), "applied": applied}
     bar.close()
     mask = reachable_mask(data, y)
