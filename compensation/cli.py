@@ -8,6 +8,7 @@ import typing
 from pathlib import Path
 
 from sim.errors import ProcamError
+from sim.options import repeated
 from sim.setup import load_setups, select_setups
 
 
@@ -105,8 +106,8 @@ def add_render(sub) -> None:
 
 
 def _twice(values: tuple) -> list[str]:
-    """The values given more than once, sorted (a list option runs each value once)."""
-    return sorted({str(v) for v in values if values.count(v) > 1})
+    """The values given more than once, as text (a list option runs each value once)."""
+    return [str(v) for v in repeated(values)]
 
 
 def _spp_list(text: str) -> tuple[int, ...]:

@@ -8,7 +8,8 @@ its metadata; the field's docstring documents it. :func:`parse` checks a mapping
 setup file) against such a dataclass from those specs alone: a key missing from the mapping takes
 the field's default, a key the dataclass does not declare is refused, and a dataclass with a
 field declared without a spec cannot be parsed at all (:func:`spec_of` raises), so no key can be
-read without being checked.
+read without being checked. :func:`repeated` finds a list's values given twice (the study file's
+and the command line's lists take each value once).
 
 Examples
 --------
@@ -455,3 +456,13 @@ def parse(cls: type, data: Mapping, table: Table) -> Any:
         except ValueError as exc:
             raise table.error(f.name, value, str(exc)) from None
     return cls(**values)
+
+
+def repeated(values) -> list:
+    """The values given more than once, each once, in the order of their ``repr`` (a list of runs,
+    rows or option values names each once).
+
+    >>> repeated([8, 4, "a", 8, "a", 4, 2])
+    ['a', 4, 8]
+    """
+    return sorted({v for v in values if list(values).count(v) > 1}, key=repr)

@@ -69,6 +69,7 @@ from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
 from sim.descriptors import DESCRIPTORS
 from sim.errors import ProcamError
+from sim.options import repeated
 from sim.seeds import SEED_MAX
 from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
 from sim.setup.schema import SECTIONS
@@ -153,8 +154,8 @@ def _positive_ints(path: Path, key: str, value, allow_list: bool = True) -> tupl
 
 def _once(path: Path, key: str, items: list) -> None:
     """Refuse a list of the study file that names one item twice (one run, or row, twice)."""
-    if twice := sorted({repr(v) for v in items if items.count(v) > 1}):
-        raise _error(path, key, items, f"expected distinct values ({', '.join(twice)} given twice)")
+    if twice := repeated(items):
+        raise _error(path, key, items, f"expected distinct values ({', '.join(map(repr, twice))} given twice)")
 
 
 def _size(path: Path, value) -> tuple[int, int]:
