@@ -24,8 +24,8 @@ from compensation.experiments.closed_loop import (closed_loop, closed_loop_targe
 from compensation.experiments.optimum import optimum
 from compensation.experiments.targets import TargetPolicy
 from compensation.reports.report import build_report
-from compensation.experiments.jobs import (check_study_folder, reusable, target_cells, write_results,
-                                          write_study_record)
+from compensation.experiments.jobs import (bound_cells, check_study_folder, reusable, target_cells,
+                                          write_results, write_study_record)
 from compensation.methods import applicable, make_config
 from compensation.training.config import PROFILES
 from compensation.experiments.runs import SCORES, load_run, train_run
@@ -196,10 +196,8 @@ def run_demo(out: Path, progress: bool = True, target: TargetPolicy = TargetPoli
     write_json(out / "demo.json", results)
     oracle = results["oracle"][-1]
     base = {"point": 0, "setup": setup.name, "status": "ok", "error": "", **target_cells(unc),
-            **{f"cl_unc_{k}": unc[m] for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))},
-            **{f"oracle_{k}": oracle[m] for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))},
-            **{f"optimum_{k}": results["optimum"][m]
-               for k, m in (("psnr", "psnr"), ("ssim", "ssim"), ("deltae", "deltaE"))}}
+            **bound_cells("cl_unc_", unc), **bound_cells("oracle_", oracle),
+            **bound_cells("optimum_", results["optimum"])}
     study = {"name": "demo", "kind": "bench", "question": "How well do CompenNet and TPS compensate "
              "the default setup, on held-out pairs and in closed loop?",
              "base": "default", "axes": [], "methods": list(METHODS),

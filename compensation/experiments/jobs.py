@@ -389,6 +389,16 @@ def target_cells(closed: dict) -> dict:
             "target_b": target.get("b")}
 
 
+def bound_cells(prefix: str, scores: dict) -> dict:
+    """A method-free closed-loop row's cells of ``results.csv`` (the uncompensated projection, the
+    oracle, the optimum): ``<prefix>psnr``, ``<prefix>ssim`` and ``<prefix>deltae``.
+
+    >>> bound_cells("oracle_", {"psnr": 20.0, "ssim": 0.5, "deltaE": 9.0, "rmse": 0.1})
+    {'oracle_psnr': 20.0, 'oracle_ssim': 0.5, 'oracle_deltae': 9.0}
+    """
+    return {f"{prefix}{_column(k)}": scores[k] for k in ("psnr", "ssim", "deltaE")}
+
+
 def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
     """The ``results.csv`` cells of one run (all but ``point``, the axes, ``setup``, ``method``,
     ``n_train`` and ``seed``, which the caller knows).
@@ -435,10 +445,10 @@ def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
             row.update({k: v for k, v in target_cells(cl).items() if row.get(k) is None})
         if base.get("oracle"):
             best = max(base["oracle"], key=lambda r: r["iterations"])
-            row.update({f"oracle_{_column(k)}": best[k] for k in ("psnr", "ssim", "deltaE")})
+            row.update(bound_cells("oracle_", best))
             per_image["oracle_psnr"] = best.get("psnr_per_image")
         if base.get("optimum"):
-            row.update({f"optimum_{_column(k)}": base["optimum"][k] for k in ("psnr", "ssim", "deltaE")})
+            row.update(bound_cells("optimum_", base["optimum"]))
             per_image["optimum_psnr"] = base["optimum"].get("psnr_per_image")
     row["per_image"] = {k: v for k, v in per_image.items() if v}
     return row

@@ -36,6 +36,7 @@ from compensation.data import SetupData
 from compensation.experiments.closed_loop import (closed_loop_scores, closed_loop_target, project,
                                                  reachable_mask)
 from compensation.experiments.targets import TargetPolicy
+from compensation.scores.metrics import mse_per_image
 from sim import seeds
 from sim.capture import Simulator
 
@@ -127,11 +128,6 @@ def box_least_squares(jac: torch.Tensor, residual: torch.Tensor, lo: torch.Tenso
 def _on_grid(x: torch.Tensor) -> torch.Tensor:
     """x rounded to the projector's 8-bit input levels, in [0, 1]."""
     return (x.clamp(0, 1) * LEVELS).round() / LEVELS
-
-
-def _errors(captured: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """Per-image mean squared error, float64 (N,)."""
-    return ((captured.double() - y.double()) ** 2).mean(dim=(1, 2, 3))
 
 
 def colour_jacobian(model, x: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
@@ -347,11 +343,11 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
 
     x = _on_grid(y)
     captured = model(x)
-    err = _errors(captured, y)
+    err = mse_per_image(captured, y)
     for start in starts:
         s = _on_grid(start)
         c = model(s)
-        e = _errors(c, y)
+        e = mse_per_image(c, y)
         take = e < err
         x[take], captured[take], err[take] = s[take], c[take], e[take]
 
@@ -365,9 +361,9 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
         better = ((c - target) ** 2).sum(1, keepdim=True) < ((now - target) ** 2).sum(1, keepdim=True)
         merged = torch.where(better, trial, x[part])
         cm = model(merged, part.start)
-        use = (_errors(cm, target) <= _errors(c, target))[:, None, None, None]
+        use = (mse_per_image(cm, target) <= mse_per_image(c, target))[:, None, None, None]
         trial, c = torch.where(use, merged, trial), torch.where(use, cm, c)
-        e = _errors(c, target)
+        e = mse_per_image(c, target)
         take = e < err[part]
         idx = torch.arange(part.start, part.stop)[take]
         x[idx], captured[idx], err[idx] = trial[take], c[take], e[take]

@@ -310,16 +310,15 @@ def write_tables(out: Path, cfg: BenchConfig, result: BenchResult) -> dict:
         body = [unc_row] + [line(_named(cfg, m), n, [r for r in t1 if r["method"] == m and r["n_train"] == n],
                                  PAPER_TABLE1.get((METHODS[m].official_name, n)))
                             for m in cfg.methods for n in cfg.sizes]
+        def closed_loop_row(name: str, group: list[dict]) -> list:  # a method-free row: closed loop only
+            return ([name, "-"] + ["-"] * (len(METRICS) + len(PAPER_METRICS)) + ["-", len(group)]
+                    + [_mean(group, m) for m in CL_COLUMNS[:-1]] + ["-"])
+
         for k in sorted({row["iterations"] for rs in oracle.values() for row in rs}):
             group = [row for rs in oracle.values() for row in rs if row["iterations"] == k]
-            body.append([f"iterative refinement ({k} it., {group[0]['projections']} proj.)", "-"]
-                        + ["-"] * (len(METRICS) + len(PAPER_METRICS)) + ["-", len(group)]
-                        + [_mean(group, m) for m in CL_COLUMNS[:-1]] + ["-"])
+            body.append(closed_loop_row(f"iterative refinement ({k} it., {group[0]['projections']} proj.)", group))
         if result.optimum:
-            group = list(result.optimum.values())
-            body.append(["exact optimum", "-"]
-                        + ["-"] * (len(METRICS) + len(PAPER_METRICS)) + ["-", len(group)]
-                        + [_mean(group, m) for m in CL_COLUMNS[:-1]] + ["-"])
+            body.append(closed_loop_row("exact optimum", list(result.optimum.values())))
         notes = [PAPER_NOTE]
         if cl:
             notes.append(_target_note(cfg, unc))

@@ -195,6 +195,17 @@ def psnr_from_mse(mse: float) -> float:
     return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
 
 
+def mse_per_image(pred: Tensor, target: Tensor) -> Tensor:
+    """Each image's mean squared error over its pixels and channels, float64 (N,).
+
+    Examples
+    --------
+    >>> mse_per_image(torch.full((2, 3, 2, 2), 0.5), torch.zeros(2, 3, 2, 2)).tolist()
+    [0.25, 0.25]
+    """
+    return ((pred.double() - target.double()) ** 2).mean(dim=(1, 2, 3))
+
+
 def psnr_per_image(pred: torch.Tensor, target: torch.Tensor, digits: int = 4) -> list[float]:
     """Each image's PSNR in dB (float64 mean squared error), rounded to ``digits`` decimals: the
     samples of the reports' confidence intervals.
@@ -204,8 +215,7 @@ def psnr_per_image(pred: torch.Tensor, target: torch.Tensor, digits: int = 4) ->
     >>> psnr_per_image(torch.full((2, 3, 2, 2), 0.1), torch.zeros(2, 3, 2, 2))
     [20.0, 20.0]
     """
-    per_image = ((pred.double() - target.double()) ** 2).mean(dim=(1, 2, 3))
-    return [round(psnr_from_mse(float(m)), digits) for m in per_image]
+    return [round(psnr_from_mse(float(m)), digits) for m in mse_per_image(pred, target)]
 
 
 def rmse_from_mse(mse: float) -> float:
