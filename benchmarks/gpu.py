@@ -64,8 +64,7 @@ def bench_training(args: argparse.Namespace) -> dict:
     """Train CompenNet on synthetic pairs through procam's loop; seconds, samples/s, prediction."""
     device = torch.device(args.device)
     data = synthetic_data(args.pairs, args.size)
-    options = CompenNetOptions(iters=args.iters, batch=args.batch, amp=args.amp,
-                               lr_step=max(1, round(0.8 * args.iters)))
+    options = CompenNetOptions(iters=args.iters, batch=args.batch, amp=args.amp)
     cfg = TrainConfig(method="compennet", options=options, n_train=None, n_test=None,
                       device=args.device, seed=0)
     if device.type == "cuda":

@@ -83,8 +83,7 @@ def main() -> None:
                 *([int(v) for v in a.split(",")] for a in (args.patches, args.batches, args.iters, args.seeds))):
             if (patch, batch, iters, seed) in done:
                 continue
-            options = CompenNetOptions(iters=iters, batch=batch, patch=patch,
-                                       lr_step=max(1, round(0.8 * iters)))
+            options = CompenNetOptions(iters=iters, batch=batch, patch=patch)
             cfg = TrainConfig(method="compennet", options=options, n_train=None, n_test=None,
                               seed=seed, device="cpu")
             method = CompenNetMethod("cpu")

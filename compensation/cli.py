@@ -192,10 +192,12 @@ def _training_options(p: argparse.ArgumentParser) -> None:
     """The profile, the options common to every method and every registered method's own options,
     generated from their dataclasses (type, choices and the field's docstring as help)."""
     from compensation.methods import METHODS, option_owners
-    from compensation.training.config import COMMON, TrainConfig, field_docs
+    from compensation.training.config import COMMON, PROFILES, TrainConfig, field_docs
 
-    p.add_argument("--profile", choices=["quick", "paper"], default="quick",
-                   help="quick: CPU-sized; paper: 256², 500 pairs, 1000 iterations, batch 64")
+    p.add_argument("--profile", choices=list(PROFILES), default="quick",
+                   help="quick: CPU-sized (64²); faithful: the paper's 256² and 125 pairs on a CPU "
+                        "(CompenNet on 64-px windows); paper: 256², 500 pairs, 1000 iterations, "
+                        "batch 64")
     common = p.add_argument_group("options of every method")
     hints = typing.get_type_hints(TrainConfig)
     for name in COMMON:
@@ -484,7 +486,7 @@ def _names(text: str, option: str) -> tuple[str, ...]:
 def cmd_study(args: argparse.Namespace) -> None:
     from compensation.experiments.studies import load_study, run_study, study_file, with_overrides
 
-    study = with_overrides(load_study(study_file(args.study)), size=args.size, n_train=args.n_train,
+    study = with_overrides(load_study(study_file(args.study), args.profile), size=args.size, n_train=args.n_train,
                            n_test=args.n_test, iters=args.iters, seeds=args.seeds,
                            methods=_names(args.methods, "--methods") if args.methods is not None else None,
                            only=_names(args.only, "--only") if args.only is not None else None,
@@ -513,6 +515,8 @@ def cmd_study(args: argparse.Namespace) -> None:
 
 
 def add_study(sub) -> None:
+    from compensation.training.config import PROFILES
+
     p = sub.add_parser("study", help="how each method's scores change with a factor of the setup",
                        description="Run a declarative study (a TOML file: a base setup or suite, "
                                    "one or two axes over setup keys or training options, methods, "
@@ -524,6 +528,9 @@ def add_study(sub) -> None:
     p.add_argument("study", help="study file, or the name of a shipped study (scenes/studies/)")
     p.add_argument("--out", required=True, help="study folder")
     smoke = p.add_argument_group("overrides (smoke runs)")
+    smoke.add_argument("--profile", choices=list(PROFILES),
+                       help="training profile instead of the study file's (its sizes apply where "
+                            "the file gives none)")
     smoke.add_argument("--size", type=_size, help="canonical size N or WxH (pixels)")
     smoke.add_argument("--n-train", type=_int_list, help="training pairs, e.g. 16 or 8,32 (replaces an "
                                                          "n_train axis's values)")

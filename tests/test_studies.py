@@ -102,6 +102,22 @@ def test_overrides_and_only():
         expand(with_overrides(study, only=("9",)))
 
 
+def test_profile_override(tmp_path):
+    (tmp_path / "base.toml").write_text(BASE)
+    head = 'base = "base.toml"\nmethods = ["compennet", "tps"]\n'
+    axis = '[[axis]]\nkey = "ambient.radiance"\nvalues = [0.1]\n'
+    (tmp_path / "study.toml").write_text(head + "n_test = 7\n" + axis)
+    study = load_study(tmp_path / "study.toml", profile="faithful")
+    assert (study.profile, study.size, study.n_train, study.n_test) == ("faithful", (256, 256), (125,), 7)
+    assert study.overrides == {"profile": "faithful"}
+    runs = {r.method: r.cfg for r in expand(study).runs}
+    assert (runs["compennet"].options.patch, runs["compennet"].options.iters) == (64, 2000)
+    assert runs["tps"].options.scale_invariant and runs["compennet"].profile == "faithful"
+    assert load_study(tmp_path / "study.toml").size == (64, 64) and load_study(tmp_path / "study.toml").overrides == {}
+    with pytest.raises(ProcamError, match="--profile 'fast': expected one of paper, quick, faithful"):
+        load_study(tmp_path / "study.toml", profile="fast")
+
+
 def test_only_in_the_study_file_selects_setups():
     plan = expand(load_study(ROOT / "scenes" / "studies" / "baseline-smoothing.toml"))
     assert sorted(plan.setups) == sorted(f"light1_{p}" for p in (

@@ -79,7 +79,7 @@ def test_run_directory(run, setup_dir, data):
     config = json.loads((run / "config.json").read_text())
     assert config["train"] == {**tiny_config().to_dict(), "n_train": 16, "n_test": 4}
     assert config["train"]["options"] == {"iters": 200, "batch": 8, "lr": 1e-3, "weight_decay": 1e-4,
-                                          "lr_step": 800, "lr_gamma": 0.2, "loss": "l1+ssim",
+                                          "lr_step": 160, "lr_gamma": 0.2, "loss": "l1+ssim",
                                           "sampler": "epoch", "amp": False, "init": None, "patch": 0}
     assert config_from_dict(config["train"]) == replace(tiny_config(), n_train=16, n_test=4)
     assert config["dataset"] == str(setup_dir.resolve())
@@ -309,15 +309,26 @@ def test_make_config_profiles_and_errors():
     quick = make_config("quick", iters=7, n_train=None)
     assert quick.profile == "quick" and quick.method == "compennet" and quick.options.iters == 7
     assert quick.options.batch == CompenNetOptions.profiles["quick"]["batch"]
-    assert quick.options.lr_step == CompenNetOptions.profiles["quick"]["lr_step"]
+    assert quick.options.lr_step == 6  # the paper's proportion: 80 % of 7 iterations
     assert quick.n_train == PROFILES["quick"]["n_train"]
+    assert make_config("quick").options.lr_step == 400
+    assert make_config("quick", iters=2000).options.lr_step == 1600
+    assert make_config("quick", iters=2000, lr_step=300).options.lr_step == 300
+    assert make_config("quick", iters=1).options.lr_step == 1
+    faithful = make_config("faithful")
+    f = faithful.options
+    assert (faithful.n_train, faithful.n_test, PROFILES["faithful"]["size"]) == (125, 100, 256)
+    assert (f.patch, f.iters, f.batch, f.lr_step, f.lr, f.loss) == (64, 2000, 16, 1600, 1e-3, "l1+ssim")
+    assert make_config("faithful", "tps").options == make_config("paper", "tps").options
+    assert make_config("faithful", "tps-textured").options == make_config("paper", "tps-textured").options
+    assert config_from_dict(faithful.to_dict()) == faithful
     paper = make_config("paper")
     o = paper.options
     assert (paper.n_train, paper.n_test, o.iters, o.batch, o.lr, o.weight_decay, o.lr_step, o.lr_gamma,
             o.loss, o.amp, o.init, paper.seed) == (500, 200, 1000, 64, 1e-3, 1e-4, 800, 0.2, "l1+ssim",
                                                    False, None, 0)
     assert make_config("quick", "tps", smoothing=0.5, seed=3).options == TPSOptions(smoothing=0.5)
-    with pytest.raises(ProcamError, match="profile 'fast': choose one of paper, quick"):
+    with pytest.raises(ProcamError, match="profile 'fast': choose one of paper, quick, faithful"):
         make_config("fast")
     with pytest.raises(ProcamError, match=re.escape("method 'compennet' does not use option 'iterations' "
                                                     "(its options: iters, batch, lr,")):

@@ -176,7 +176,8 @@ def test_patch_training_resumes_bit_identically(data, tmp_path):
     """The crop windows' random state is part of the training checkpoint."""
     def fit(iters, checkpoint=None):
         method = get_method("compennet")(device="cpu")
-        cfg = TrainConfig(method="compennet", options=CompenNetOptions(iters=iters, batch=4, patch=16),
+        cfg = TrainConfig(method="compennet", options=CompenNetOptions(iters=iters, batch=4, patch=16,
+                                                                          lr_step=4),
                           seed=1, device="cpu")
         return method.fit(data, cfg, progress=False, checkpoint=checkpoint), method.model.state_dict()
 

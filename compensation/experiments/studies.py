@@ -210,8 +210,12 @@ def _axis(path: Path, i: int, table) -> Axis:
     return Axis(key, tuple(values), table.get("label", key), table.get("unit", ""))
 
 
-def load_study(path: Path | str) -> Study:
+def load_study(path: Path | str, profile: str | None = None) -> Study:
     """Read and check a study file (the base and the points are checked by :func:`expand`).
+
+    ``profile`` (the command line's ``--profile``) replaces the file's training profile: its
+    methods' options, and the sizes (``n_train``, ``n_test``, ``size``) the file leaves to the
+    profile; it is recorded in :attr:`Study.overrides`.
 
     Raises
     ------
@@ -232,7 +236,10 @@ def load_study(path: Path | str) -> Study:
     for key in ("base", "methods", "axis"):
         if key not in data:
             raise ProcamError(f"{path}: {key}: missing")
-    profile = data.get("profile", "quick")
+    if profile is not None and profile not in PROFILES:
+        raise ProcamError(f"--profile {profile!r}: expected one of {', '.join(PROFILES)}")
+    overrides = {} if profile is None else {"profile": profile}
+    profile = profile or data.get("profile", "quick")
     if profile not in PROFILES:
         raise _error(path, "profile", profile, f"expected one of {', '.join(PROFILES)}")
     defaults = PROFILES[profile]
@@ -284,7 +291,7 @@ def load_study(path: Path | str) -> Study:
         size=_size(path, data.get("size", defaults["size"])), profile=profile,
         render_seeds=data.get("render_seeds", False), setup=dict(fixed), options=dict(options),
         only=tuple(o.strip() for o in only), target=target, closed_loop=data.get("closed_loop", True),
-        raw=data.get("raw", False))
+        raw=data.get("raw", False), overrides=overrides)
 
 
 def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: tuple[int, ...] | None = None,

@@ -31,7 +31,7 @@ class Options:
 
     Subclasses declare fields with defaults (the paper's values) and a docstring each (unit,
     range, paper value); :func:`field_docs` reads those docstrings for the command line.
-    ``profiles`` holds per-profile defaults (``quick``/``paper``) layered under explicit values;
+    ``profiles`` holds per-profile defaults (keys of :data:`PROFILES`) layered under explicit values;
     :meth:`check` validates ranges.
     """
 
@@ -97,6 +97,10 @@ PROFILES: dict[str, dict] = {
     # CPU-sized: one CompenNet run trains in about one and a half minutes on 2 cores at 64² (the
     # method's own quick profile sets its iterations and batch).
     "quick": dict(n_train=250, n_test=100, size=64),
+    # The paper's 256² canonical view on 2 CPU cores: Table 1's smallest training set and half the
+    # paper's test pairs (each method's own faithful profile keeps the paper's recipe where a CPU
+    # affords it: CompenNet trains on windows, benchmarks/results/patches/README.md).
+    "faithful": dict(n_train=125, n_test=100, size=256),
 }
 """Named settings common to every method: the training and test pairs, and ``size``, the canonical
 square image size (pixels) a dataset is rendered at for that profile (training itself uses the
@@ -113,13 +117,14 @@ class TrainConfig:
     """The method's options (an instance of its ``options`` class; the registry's
     :func:`~compensation.methods.make_config` builds the right one by method name)."""
     profile: str = "paper"
-    """Profile the values came from (``paper`` or ``quick``); recorded only."""
+    """Profile the values came from (a key of :data:`PROFILES`: ``paper``, ``quick`` or
+    ``faithful``); recorded only."""
     n_train: int | None = 500
     """Use the first n training pairs (>= 1); not given on the command line, the profile's count
-    (quick 250, paper 500); None in a configuration uses all of them."""
+    (quick 250, faithful 125, paper 500); None in a configuration uses all of them."""
     n_test: int | None = 200
     """Use the first n test pairs (>= 1); not given on the command line, the profile's count
-    (quick 100, paper 200); None in a configuration uses all of them."""
+    (quick 100, faithful 100, paper 200); None in a configuration uses all of them."""
     seed: int = 0
     """Seeds initialisation, batch order and any sampling of the method (0 to 2³²−1; paper 0)."""
     device: str = "auto"
