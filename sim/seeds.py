@@ -60,6 +60,9 @@ AMBIENT = 99
 RESPONSE = 100
 """Captures of plain black (index 0) and plain white (index 1) that check, before a dataset is
 rendered, that its captures respond to the projector (kept in no file)."""
+LIGHT = 101
+"""Renders of plain white that measure a setup's light shares (:mod:`sim.light`): index 0 at the
+captures' level, 1 path-traced, 2 direct light only."""
 TEST_TIME = (TEST,) + tuple(range(CLOSED_LOOP, EXPOSURE))
 """Streams captured at test time (test frames, closed loop and its refinement rounds): the lamp's
 ``projector.drift`` applies to them, not to the calibration captures (reference, training,

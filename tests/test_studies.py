@@ -192,8 +192,14 @@ def test_study_folder(tiny):
     assert {"name", "question", "kind", "base", "axes", "methods", "seeds", "n_train", "n_test", "size",
             "overrides", "versions", "setups", "created"} <= set(record)
     assert record["kind"] == "study" and record["name"] == "tiny"
-    assert record["axes"] == [{"key": "ambient.radiance", "values": [0.02, 0.1], "label": "ambient radiance",
-                               "unit": ""}]
+    axis = record["axes"][0]
+    assert {k: axis[k] for k in ("key", "values", "label", "unit")} == {
+        "key": "ambient.radiance", "values": [0.02, 0.1], "label": "ambient radiance", "unit": ""}
+    # the room light, measured in each point's renders: linear in the radiance, and near the
+    # radiance relative to the projector's white (0.02: 2 %; the projector's falloff moves it)
+    share = axis["physical"]
+    assert (share["label"], share["unit"]) == ("room light", "% of projector white")
+    assert 1.0 < share["values"][0] < 4.0 and share["values"][1] == pytest.approx(5 * share["values"][0], rel=1e-3)
     assert set(record["versions"]) == {"procam", "procam source", "torch", "mitsuba", "python"}
     assert record["versions"]["procam source"].startswith(("git ", "sha256 "))
     assert record["size"] == [32, 32] and record["n_train"] == [8] and record["seeds"] == [0]
@@ -224,6 +230,8 @@ def test_study_folder(tiny):
         assert captures == [f"img_{i:04d}.png" for i in range(1, 5)]
         assert iio.imread(run / "closed_loop" / "img_0001.png").shape == (32, 32, 3)
         assert r["undertrained"] == "0"  # tps and nayar log no falling loss
+        assert float(r["ambient_share"]) == pytest.approx(share["values"][int(r["point"])] / 100, rel=1e-3)
+        assert float(r["indirect_share"]) == 0.0  # a plane does not light itself
     # per_image.csv: every run's 4 test images, each score the PSNR of that image alone
     images = csv_rows(out / "per_image.csv")
     assert [(i["point"], i["method"], i["image"]) for i in images] == [

@@ -69,7 +69,8 @@ RESULT_COLUMNS = (
     "oracle_psnr", "oracle_ssim", "oracle_deltae", "optimum_psnr", "optimum_ssim", "optimum_deltae",
     "fit_s", "infer_ms", "run",
     "cl_psnr_reachable", "cl_unc_psnr_reachable", "reachable_fraction", "target_policy",
-    "target_out_of_reach", "target_out_of_reach_used", "target_a", "target_b", "undertrained")
+    "target_out_of_reach", "target_out_of_reach_used", "target_a", "target_b", "undertrained",
+    "ambient_share", "indirect_share")
 """Columns of ``results.csv`` after ``point`` and the axis columns (an axis on ``n_train`` is the
 ``n_train`` column itself); a bench adds ``table`` and ``variant``. ``undertrained`` is 1 where the
 run's training loss was still falling at its end (:func:`still_falling`), else 0. The ``optimum_``
@@ -78,7 +79,9 @@ as a method's are. The ``cl_``, ``oracle_`` and ``optimum_`` scores compare with
 ``target_policy`` (map y' = ``target_a`` · y + ``target_b``,
 the mean over the images for the ``image`` policy; ``target_out_of_reach_used``: the share of pixels
 the map was allowed to leave out, above the policy's where that admits no contrast);
-``reachable_fraction`` is the share of y''s pixels the setup can show."""
+``reachable_fraction`` is the share of y''s pixels the setup can show. ``ambient_share`` and
+``indirect_share`` are the setup's room light and inter-reflected light as shares of the
+projector's white and of its direct light (:func:`~sim.light.light_shares`)."""
 
 
 @dataclass(frozen=True)
@@ -283,27 +286,36 @@ def baselines(job: BaselineJob) -> dict:
     :func:`~compensation.experiments.closed_loop.uncompensated`), ``oracle`` (the rows of
     :func:`~compensation.experiments.closed_loop.iterative_refinement`, or None), ``optimum`` (the
     scores of :func:`~compensation.experiments.optimum.optimum` started from the oracle's last
-    frames, or None), ``size`` ([height, width]) and ``reused`` (the kept record was returned)."""
+    frames, or None), ``light`` (:func:`~sim.light.light_shares` of a simulated setup, else None),
+    ``size`` ([height, width]) and ``reused`` (the kept record was returned)."""
+    from compensation.experiments.closed_loop import simulator_for
+    from sim.light import light_shares
+
     setup_dir = Path(job.setup_dir)
     closed = job.closed_loop and simulated(setup_dir)
     key = _baseline_key(job, closed)
     if job.record is not None and Path(job.record).exists() and job.masks is None:
         try:
             kept = read_json(job.record, "baseline record")
-            if kept.get("key") == key:
-                return {**kept["result"], "reused": True}
         except ProcamError:
-            pass
+            kept = {}
+        if kept.get("key") == key:
+            result = kept["result"]
+            if result.get("light") is None and simulated(setup_dir):  # kept before light was measured
+                result["light"] = light_shares(simulator_for(setup_dir))
+                write_json(job.record, {"key": key, "result": result})
+            return {**result, "reused": True}
     data = load_setup_data(setup_dir, n_train=1, n_test=job.n_test)
     captures, y = data.test.captures, data.test.frames
     scores, oracle, best = evaluate(captures, y), None, None
+    sim = simulator_for(setup_dir) if simulated(setup_dir) else None
+    light = None if sim is None else light_shares(sim)
     if closed:
         from compensation.experiments.closed_loop import (closed_loop_target, iterative_refinement,
-                                                         reachable_mask, reachable_overlay, simulator_for,
+                                                         reachable_mask, reachable_overlay,
                                                          uncompensated)
         from compensation.experiments.optimum import optimum
 
-        sim = simulator_for(setup_dir)
         scores["closed_loop"], _ = uncompensated(data, sim, policy=job.target)
         if job.masks is not None:
             k = min(N_CAPTURES, y.shape[0])
@@ -313,7 +325,8 @@ def baselines(job: BaselineJob) -> dict:
             write_png(Path(job.masks) / f"{data.name}.png", to_uint8(strip.numpy()))
         oracle, frames = iterative_refinement(data, sim, policy=job.target, return_frames=True)
         best, _ = optimum(data, sim, policy=job.target, starts=(frames,))
-    result = {"uncompensated": scores, "oracle": oracle, "optimum": best, "size": list(data.size)}
+    result = {"uncompensated": scores, "oracle": oracle, "optimum": best, "light": light,
+              "size": list(data.size)}
     if job.record is not None:
         write_json(job.record, {"key": key, "result": result})
     return {**result, "reused": False}
@@ -450,6 +463,8 @@ def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
         if base.get("optimum"):
             row.update(bound_cells("optimum_", base["optimum"]))
             per_image["optimum_psnr"] = base["optimum"].get("psnr_per_image")
+        if base.get("light"):
+            row.update(ambient_share=base["light"]["ambient"], indirect_share=base["light"]["indirect"])
     row["per_image"] = {k: v for k, v in per_image.items() if v}
     return row
 

@@ -68,6 +68,7 @@ from compensation.methods import applicable, get_method, make_config, option_own
 from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
 from sim.descriptors import DESCRIPTORS
+from sim.light import AXIS_SHARES, SHARE_NAMES
 from sim.errors import ProcamError
 from sim.options import repeated
 from sim.seeds import SEED_MAX
@@ -482,14 +483,34 @@ def physical_values(study: Study, plan: Plan, axis: Axis) -> dict | None:
     return {"label": descriptor.label, "unit": descriptor.unit, "values": values}
 
 
-def study_record(study: Study, plan: Plan, kind: str = "study") -> dict:
+def measured_values(plan: Plan, axis: Axis, base: dict[str, dict]) -> dict | None:
+    """What an axis on a key of :data:`sim.light.AXIS_SHARES` amounts to, measured: ``label``,
+    ``unit`` and ``values`` (the share in percent, from the baselines record of the first setup at
+    each axis value; None where none measured it), or None for another key."""
+    share = AXIS_SHARES.get(axis.key)
+    if share is None:
+        return None
+    values = []
+    for value in axis.values:
+        setup = next((r.setup for r in plan.runs if r.point.values.get(axis.key) == value), None)
+        light = (base.get(setup) or {}).get("light") if (base.get(setup) or {}).get("ok") else None
+        values.append(None if not light else round(100 * light[share], 3))
+    label, unit = SHARE_NAMES[share]
+    return {"label": label, "unit": unit, "values": values}
+
+
+def study_record(study: Study, plan: Plan, kind: str = "study", base: dict[str, dict] | None = None) -> dict:
     """The contents of ``study.json`` (without ``versions`` and ``created``); an axis whose key sets
-    a physical quantity carries it (:func:`physical_values`)."""
+    a physical quantity carries it (:func:`physical_values`), or once the baselines ran (``base``:
+    setup name → baseline record) the share of light it sets, measured (:func:`measured_values`)."""
     sizes = sorted({r.n_train for r in plan.runs})
     axes = []
     for a in study.axes:
         axes.append({"key": a.key, "values": list(a.values), "label": a.label, "unit": a.unit})
-        if (physical := physical_values(study, plan, a)) is not None:
+        physical = physical_values(study, plan, a)
+        if physical is None and base is not None:
+            physical = measured_values(plan, a, base)
+        if physical is not None:
             axes[-1]["physical"] = physical
     return {"name": study.name, "question": study.question, "kind": kind, "base": study.base,
             "axes": axes,
@@ -548,6 +569,7 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     write_study_record(out, {**record, "executor": executor.name})
     outcome = execute(plan, out, out / "data", spec, Scoring(study.n_test, study.closed_loop, target=study.target), executor,
                       list(plan.setups), progress, study.raw)
+    write_study_record(out, {**study_record(study, plan, base=outcome.base), "executor": executor.name})
     rows = result_rows(plan, outcome, out)
     results = write_results(out, [a.key for a in study.axes], rows)
     fitted = [d for d in outcome.fitted.values() if not d.get("skipped")]

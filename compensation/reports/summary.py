@@ -35,9 +35,10 @@ SCORES = (*METRICS, *(f"cl_{m}" for m in METRICS), *(f"unc_{m}" for m in METRICS
           "cl_unc_psnr", "cl_unc_ssim", "cl_unc_deltae", "oracle_psnr", "oracle_ssim", "oracle_deltae",
           "optimum_psnr", "optimum_ssim", "optimum_deltae",
           "fit_s", "infer_ms", "reachable_fraction", "target_out_of_reach", "target_out_of_reach_used",
-          "target_a", "target_b")
+          "target_a", "target_b", "ambient_share", "indirect_share")
 """The numeric columns of ``results.csv`` (empty cells read as NaN); closed-loop scores compare with
-the target y' = ``target_a`` · y + ``target_b`` of the row's ``target_policy``."""
+the target y' = ``target_a`` · y + ``target_b`` of the row's ``target_policy``; ``ambient_share`` and
+``indirect_share`` are the setup's measured light (:func:`~sim.light.light_shares`)."""
 STATUSES = ("ok", "failed", "nan", "diverged")
 """Values of the ``status`` column: finished; raised an error (``error`` says which); a score is not
 finite; the training loss grew (:data:`compensation.experiments.jobs.DIVERGED_RATIO`) or is not
