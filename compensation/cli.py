@@ -527,10 +527,11 @@ def add_study(sub) -> None:
                                    "with the same configuration is reused.")
     p.add_argument("study", help="study file, or the name of a shipped study (scenes/studies/)")
     p.add_argument("--out", required=True, help="study folder")
+    p.add_argument("--profile", choices=list(PROFILES),
+                   help="training profile instead of the study file's (its sizes apply where the "
+                        "file gives none; faithful trains CompenNet on 64-px windows, so a size "
+                        "of at least 64)")
     smoke = p.add_argument_group("overrides (smoke runs)")
-    smoke.add_argument("--profile", choices=list(PROFILES),
-                       help="training profile instead of the study file's (its sizes apply where "
-                            "the file gives none)")
     smoke.add_argument("--size", type=_size, help="canonical size N or WxH (pixels)")
     smoke.add_argument("--n-train", type=_int_list, help="training pairs, e.g. 16 or 8,32 (replaces an "
                                                          "n_train axis's values)")

@@ -1,6 +1,6 @@
-"""How much of the light a camera sees is not the projector's direct light: the room light, and
-the projector's light that the surface throws back onto itself (inter-reflection), each as a share
-of the projector's white, measured in the canonical view.
+"""How much of the light a camera sees is not the projector's direct light, measured in the
+canonical view: the room light as a share of the projector's white, and the projector's light
+that the surface throws back onto itself (inter-reflection) as a share of its direct light.
 
 A study records these beside the factor that sets them, so that its axis reads in what a reader
 compares across setups ("room light 10 % of projector white", "indirect light 12 % of direct").
@@ -11,9 +11,8 @@ import numpy as np
 
 from sim import registration, seeds, surfaces
 from sim.capture import Simulator
-from sim.fidelity import make_renderer
+from sim.fidelity import make_renderer, with_depth
 from sim.render import Renderer
-
 
 AXIS_SHARES = {"ambient.radiance": "ambient", "ambient.intensity": "ambient"}
 """Setup keys whose value sets one share of :func:`light_shares` (a study's axis on such a key
@@ -23,9 +22,15 @@ SHARE_NAMES = {"ambient": ("room light", "% of projector white"), "indirect": ("
 
 
 def _seen_mean(sim: Simulator, radiance: np.ndarray) -> float:
-    """Mean linear radiance (all channels) over the canonical view's seen pixels."""
+    """Mean linear radiance (all channels) over the canonical view's seen pixels (NaN if none)."""
     canonical = registration.warp(np.asarray(radiance, np.float32), sim.warp_map)
-    return float(canonical[sim.warp_map.mask].mean())
+    seen = canonical[sim.warp_map.mask]
+    return float(seen.mean()) if seen.size else float("nan")
+
+
+def _share(part: float, whole: float) -> float | None:
+    """``part / whole``, or None where the whole is not a positive number (nothing lit)."""
+    return part / whole if whole > 0 else None
 
 
 def light_shares(sim: Simulator) -> dict:
@@ -42,22 +47,27 @@ def light_shares(sim: Simulator) -> dict:
         ``ambient``: the mean linear radiance of the room light alone over the canonical view's
         seen pixels, over that of the projector's white frame (projector light only, at the
         captures' rendering level; 0.1: the room adds 10 % of the projector's white).
-        ``indirect``: for a surface that lights itself, the projector's white path-traced at
-        ``render.max_depth`` minus its direct light (the ``direct`` level), over the direct light, in the
-        same view; 0 for a surface that cannot (a plane).
+        ``indirect``: for a surface that lights itself, the projector's white path-traced at the
+        captures' depth minus its direct light (the ``direct`` level), over the direct light, in
+        the same view; 0 for a surface that cannot (a plane). Each None where its denominator is
+        not positive (no seen pixel lit).
     """
     w, h = sim.size
     white = np.full((h, w, 3), 255, np.uint8)
     r = sim.setup.render
-    renderer = sim.renderer
-    projector = renderer.projector_radiance(renderer.emit(white), seeds.mitsuba_seed(r.seed, seeds.LIGHT, 0))
-    ambient = _seen_mean(sim, renderer.ambient_radiance()) / _seen_mean(sim, projector)
+
+    def lit(renderer: Renderer, index: int) -> float:
+        light = renderer.projector_radiance(renderer.emit(white), seeds.mitsuba_seed(r.seed, seeds.LIGHT, index))
+        return _seen_mean(sim, light)
+
+    projector = lit(sim.renderer, 0)
+    ambient = _share(_seen_mean(sim, sim.renderer.ambient_radiance()), projector)
     indirect = 0.0
     if surfaces.surface_for(sim.setup.surface).interreflection:
+        path = (projector if sim.choice.level == "path" else
+                lit(make_renderer(with_depth(sim.setup, sim.choice.max_depth), "path", sim.choice.spp), 1))
         # The direct level drops the inter-reflection, which is what it measures here (a capture
         # renderer may not: make_renderer refuses it for such a surface).
-        path, direct = make_renderer(sim.setup, "path", r.spp), Renderer(sim.setup, "direct", r.spp)
-        lit = [_seen_mean(sim, m.projector_radiance(m.emit(white), seeds.mitsuba_seed(r.seed, seeds.LIGHT, i)))
-               for i, m in ((1, path), (2, direct))]
-        indirect = (lit[0] - lit[1]) / lit[1]
+        direct = lit(Renderer(sim.setup, "direct", sim.choice.spp), 2)
+        indirect = _share(path - direct, direct)
     return {"ambient": ambient, "indirect": indirect}

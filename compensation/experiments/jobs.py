@@ -286,8 +286,8 @@ def baselines(job: BaselineJob) -> dict:
     :func:`~compensation.experiments.closed_loop.uncompensated`), ``oracle`` (the rows of
     :func:`~compensation.experiments.closed_loop.iterative_refinement`, or None), ``optimum`` (the
     scores of :func:`~compensation.experiments.optimum.optimum` started from the oracle's last
-    frames, or None), ``light`` (:func:`~sim.light.light_shares` of a simulated setup, else None),
-    ``size`` ([height, width]) and ``reused`` (the kept record was returned)."""
+    frames, or None), ``light`` (:func:`~sim.light.light_shares` through the closed loop's simulator,
+    or None), ``size`` ([height, width]) and ``reused`` (the kept record was returned)."""
     from compensation.experiments.closed_loop import simulator_for
     from sim.light import light_shares
 
@@ -301,21 +301,21 @@ def baselines(job: BaselineJob) -> dict:
             kept = {}
         if kept.get("key") == key:
             result = kept["result"]
-            if result.get("light") is None and simulated(setup_dir):  # kept before light was measured
+            if result.get("light") is None and closed:  # kept before the light was measured
                 result["light"] = light_shares(simulator_for(setup_dir))
                 write_json(job.record, {"key": key, "result": result})
             return {**result, "reused": True}
     data = load_setup_data(setup_dir, n_train=1, n_test=job.n_test)
     captures, y = data.test.captures, data.test.frames
-    scores, oracle, best = evaluate(captures, y), None, None
-    sim = simulator_for(setup_dir) if simulated(setup_dir) else None
-    light = None if sim is None else light_shares(sim)
+    scores, oracle, best, light = evaluate(captures, y), None, None, None
     if closed:
         from compensation.experiments.closed_loop import (closed_loop_target, iterative_refinement,
                                                          reachable_mask, reachable_overlay,
                                                          uncompensated)
         from compensation.experiments.optimum import optimum
 
+        sim = simulator_for(setup_dir)
+        light = light_shares(sim)
         scores["closed_loop"], _ = uncompensated(data, sim, policy=job.target)
         if job.masks is not None:
             k = min(N_CAPTURES, y.shape[0])
@@ -563,10 +563,11 @@ def check_study_folder(out: Path, name: str, kind: str) -> None:
                           f"{held.get('name')!r}; choose another --out for the {kind} {name!r}")
 
 
-def write_study_record(out: Path, record: dict) -> Path:
-    """Write ``out/study.json``: ``record`` plus ``versions`` and ``created`` (ISO time, UTC)."""
-    write_json(out / "study.json", {**record, "versions": versions(),
-                                    "created": datetime.now(timezone.utc).isoformat(timespec="seconds")})
+def write_study_record(out: Path, record: dict, created: str | None = None) -> Path:
+    """Write ``out/study.json``: ``record`` plus ``versions`` and ``created`` (ISO time, UTC; now
+    unless given)."""
+    created = created or datetime.now(timezone.utc).isoformat(timespec="seconds")
+    write_json(out / "study.json", {**record, "versions": versions(), "created": created})
     return out / "study.json"
 
 

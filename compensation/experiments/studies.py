@@ -68,8 +68,9 @@ from compensation.methods import applicable, get_method, make_config, option_own
 from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
 from sim.descriptors import DESCRIPTORS
-from sim.light import AXIS_SHARES, SHARE_NAMES
 from sim.errors import ProcamError
+from sim.io import read_json
+from sim.light import AXIS_SHARES, SHARE_NAMES
 from sim.options import repeated
 from sim.seeds import SEED_MAX
 from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
@@ -221,8 +222,9 @@ def load_study(path: Path | str, profile: str | None = None) -> Study:
     Raises
     ------
     ProcamError
-        If the file cannot be read or is not TOML, or a key or value is unknown or invalid; the
-        message names the file and the key.
+        If the file cannot be read or is not TOML, or a key or value is unknown or invalid (the
+        message names the file and the key), or ``profile`` is not a profile (it names
+        ``--profile``).
     """
     path = Path(path)
     try:
@@ -465,6 +467,11 @@ def expand(study: Study) -> Plan:
     return Plan(points, setups, tuple(runs))
 
 
+def _first_setup(plan: Plan, axis: Axis, value) -> str | None:
+    """The setup of the first run at an axis value (None where no run has it)."""
+    return next((r.setup for r in plan.runs if r.point.values.get(axis.key) == value), None)
+
+
 def physical_values(study: Study, plan: Plan, axis: Axis) -> dict | None:
     """What an axis's values amount to physically (:data:`sim.descriptors.DESCRIPTORS`): ``label``,
     ``unit`` and ``values`` (one per axis value, from the setup of the first run at that value at
@@ -474,10 +481,10 @@ def physical_values(study: Study, plan: Plan, axis: Axis) -> dict | None:
         return None
     values = []
     for value in axis.values:
-        run = next((r for r in plan.runs if r.point.values.get(axis.key) == value), None)
+        setup = _first_setup(plan, axis, value)
         try:
-            values.append(None if run is None else
-                          round(descriptor.value(plan.setups[run.setup], tuple(study.size)), 4))
+            values.append(None if setup is None else
+                          round(descriptor.value(plan.setups[setup], tuple(study.size)), 4))
         except ProcamError:  # a setup that cannot be rendered: its point fails when rendered
             values.append(None)
     return {"label": descriptor.label, "unit": descriptor.unit, "values": values}
@@ -492,9 +499,9 @@ def measured_values(plan: Plan, axis: Axis, base: dict[str, dict]) -> dict | Non
         return None
     values = []
     for value in axis.values:
-        setup = next((r.setup for r in plan.runs if r.point.values.get(axis.key) == value), None)
-        light = (base.get(setup) or {}).get("light") if (base.get(setup) or {}).get("ok") else None
-        values.append(None if not light else round(100 * light[share], 3))
+        record = base.get(_first_setup(plan, axis, value)) or {}
+        measured = (record.get("light") or {}).get(share) if record.get("ok") else None
+        values.append(None if measured is None else round(100 * measured, 3))
     label, unit = SHARE_NAMES[share]
     return {"label": label, "unit": unit, "values": values}
 
@@ -566,10 +573,12 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     check_study_folder(out, study.name, "study")
     out.mkdir(parents=True, exist_ok=True)
     record = study_record(study, plan)
-    write_study_record(out, {**record, "executor": executor.name})
+    first = read_json(write_study_record(out, {**record, "executor": executor.name}), "study record")
     outcome = execute(plan, out, out / "data", spec, Scoring(study.n_test, study.closed_loop, target=study.target), executor,
                       list(plan.setups), progress, study.raw)
-    write_study_record(out, {**study_record(study, plan, base=outcome.base), "executor": executor.name})
+    if any(a.key in AXIS_SHARES for a in study.axes):  # the light its axis sets, now measured
+        write_study_record(out, {**study_record(study, plan, base=outcome.base), "executor": executor.name},
+                           first["created"])
     rows = result_rows(plan, outcome, out)
     results = write_results(out, [a.key for a in study.axes], rows)
     fitted = [d for d in outcome.fitted.values() if not d.get("skipped")]

@@ -300,8 +300,9 @@ class CompenNetOptions(Options):
     """Adam L2 weight decay (>= 0; paper 1e-4)."""
     lr_step: int | None = None
     """Multiply the learning rate by ``lr_gamma`` every this many steps (>= 1; paper 800). Not
-    given: after :data:`LR_STEP_SHARE` of ``iters`` (the paper's proportion at any iteration
-    count; 800 of the paper's 1000), resolved when the options are made."""
+    given: after 80 % of ``iters`` (:data:`LR_STEP_SHARE`, the paper's 800 of 1000, at any
+    iteration count), resolved when the options are made (``dataclasses.replace`` of ``iters``
+    alone keeps the resolved step)."""
     lr_gamma: float = 0.2
     """Learning-rate decay factor (> 0; paper 0.2)."""
     loss: Literal["l1", "l2", "ssim", "l1+ssim", "l1+l2", "l2+ssim", "l1+l2+ssim"] = "l1+ssim"

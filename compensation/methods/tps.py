@@ -48,8 +48,8 @@ source states, and what none does:
   per-pixel scattered-data interpolation of the colour mapping). procam fits the same.
 - Smoothing: the paper states no λ. The reimplementation adds 0.05·α² to the kernel diagonal, α
   the pixel's mean distance between its captured colours (a scale-invariant ridge), i.e.
-  :data:`PAPER_SMOOTHING`·α² in procam's kernel: the ``paper`` profile's setting
-  (``scale_invariant``). The ``quick`` profile keeps λ tuned on procam's simulated pixels
+  :data:`PAPER_SMOOTHING`·α² in procam's kernel: the ``paper`` and ``faithful`` profiles'
+  setting (``scale_invariant``). The ``quick`` profile keeps λ tuned on procam's simulated pixels
   (:data:`SMOOTHING`, :data:`SMOOTHING_TEXTURED`). Both are recorded in Table 1's rows and in the
   official tag (``TPS_125_lambda0.0347alpha2``).
 
@@ -343,10 +343,11 @@ class TPSOptions(Options):
 
     smoothing: float = SMOOTHING
     """λ >= 0 added to the kernel diagonal (see :data:`SMOOTHING` for how 1e-2 was chosen; the
-    paper profile: :data:`PAPER_SMOOTHING`, scale-invariant)."""
+    paper and faithful profiles: :data:`PAPER_SMOOTHING`, scale-invariant)."""
     scale_invariant: bool = False
     """Multiply λ per pixel by α², α the mean distance between the pixel's captured colours
-    (the regularisation of the reimplementation the paper's author points to; paper profile)."""
+    (the regularisation of the reimplementation the paper's author points to; paper and faithful
+    profiles)."""
     workers: int | None = None
     """Worker processes for the fit (>= 1); None: one per usable CPU core. Does not change results."""
 
@@ -369,8 +370,8 @@ class TPSTexturedOptions(TPSOptions):
     """Options of ``tps-textured`` (splines on the textured training pairs)."""
 
     smoothing: float = SMOOTHING_TEXTURED
-    """λ >= 0 added to the kernel diagonal (see :data:`SMOOTHING_TEXTURED`; the paper profile:
-    :data:`PAPER_SMOOTHING`, scale-invariant)."""
+    """λ >= 0 added to the kernel diagonal (see :data:`SMOOTHING_TEXTURED`; the paper and faithful
+    profiles: :data:`PAPER_SMOOTHING`, scale-invariant)."""
     max_samples: int = MAX_SAMPLES
     """Most sample pairs per pixel (>= 4; the paper's 500 training pairs); more pairs are
     subsampled at random (seeded), the same for every pixel."""
