@@ -42,6 +42,8 @@ PANELS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("deltae", "ΔE (CIEDE2000)")
 SCOPES = (("", "surrogate", "unc_", ()), ("cl_", "closed loop", "cl_unc_", ("oracle_", "optimum_")))
 """Panel rows: (column prefix, title, uncompensated prefix, prefixes of the method-free rows drawn
 beside: the feedback oracle and the exact optimum)."""
+LEGEND_COLUMNS = 4
+"""Entries per row of a figure's shared legend (five long labels overflow the figure's width)."""
 BOUNDS = {"oracle_": (":", "feedback oracle"), "optimum_": ("-", "exact optimum (physical bound)")}
 """Line style and label of each method-free row of :data:`SCOPES`."""
 LOG_SPAN = 20
@@ -381,10 +383,10 @@ def _finish(plt, fig, axes, stem: Path, title: str) -> list[Path]:
             if lab not in handles:
                 handles[lab] = h
                 labels.append(lab)
-    fig.legend([handles[lab] for lab in labels], labels, loc="lower center", ncol=min(len(labels), 5),
+    fig.legend([handles[lab] for lab in labels], labels, loc="lower center", ncol=min(len(labels), LEGEND_COLUMNS),
                fontsize=8, frameon=False)
     fig.suptitle(title, fontsize=11)
-    fig.tight_layout(rect=(0, 0.06 + 0.025 * ((len(labels) - 1) // 5), 1, 0.95))
+    fig.tight_layout(rect=(0, 0.06 + 0.025 * ((len(labels) - 1) // LEGEND_COLUMNS), 1, 0.95))
     return _saved(plt, fig, stem)
 
 
