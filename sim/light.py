@@ -17,7 +17,8 @@ from sim.render import Renderer
 AXIS_SHARES = {"ambient.radiance": "ambient", "ambient.intensity": "ambient"}
 """Setup keys whose value sets one share of :func:`light_shares` (a study's axis on such a key
 records that share, measured, per value)."""
-SHARE_NAMES = {"ambient": ("room light", "% of projector white"), "indirect": ("indirect light", "% of direct light")}
+SHARE_NAMES = {"ambient": ("room light", "% of projector white"),
+               "indirect": ("indirect light", "% of direct light")}
 """Each share's label and unit as a study records it (in percent)."""
 
 
@@ -57,7 +58,8 @@ def light_shares(sim: Simulator) -> dict:
     r = sim.setup.render
 
     def lit(renderer: Renderer, index: int) -> float:
-        light = renderer.projector_radiance(renderer.emit(white), seeds.mitsuba_seed(r.seed, seeds.LIGHT, index))
+        seed = seeds.mitsuba_seed(r.seed, seeds.LIGHT, index)
+        light = renderer.projector_radiance(renderer.emit(white), seed)
         return _seen_mean(sim, light)
 
     projector = lit(sim.renderer, 0)

@@ -338,7 +338,8 @@ def _pixel_images(values: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 class TPSOptions(Options):
     """Options of ``tps`` (splines on the 125 plain colours)."""
 
-    profiles = {name: dict(smoothing=PAPER_SMOOTHING, scale_invariant=True) for name in ("paper", "faithful")}
+    profiles = {name: dict(smoothing=PAPER_SMOOTHING, scale_invariant=True)
+                for name in ("paper", "faithful")}
     """The paper's regularisation in the ``paper`` and ``faithful`` profiles."""
 
     smoothing: float = SMOOTHING

@@ -383,8 +383,8 @@ def _finish(plt, fig, axes, stem: Path, title: str) -> list[Path]:
             if lab not in handles:
                 handles[lab] = h
                 labels.append(lab)
-    fig.legend([handles[lab] for lab in labels], labels, loc="lower center", ncol=min(len(labels), LEGEND_COLUMNS),
-               fontsize=8, frameon=False)
+    fig.legend([handles[lab] for lab in labels], labels, loc="lower center",
+               ncol=min(len(labels), LEGEND_COLUMNS), fontsize=8, frameon=False)
     fig.suptitle(title, fontsize=11)
     fig.tight_layout(rect=(0, 0.06 + 0.025 * ((len(labels) - 1) // LEGEND_COLUMNS), 1, 0.95))
     return _saved(plt, fig, stem)

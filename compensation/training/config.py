@@ -30,9 +30,10 @@ class Options:
     """Base of every method's options: a frozen dataclass, one documented field per option.
 
     Subclasses declare fields with defaults (the paper's values, or None where the paper's rule
-    derives one from another field) and a docstring each (unit, range, paper value); :func:`field_docs` reads those docstrings for the command line.
-    ``profiles`` holds per-profile defaults (keys of :data:`PROFILES`) layered under explicit values;
-    :meth:`check` validates ranges.
+    derives one from another field) and a docstring each (unit, range, paper value);
+    :func:`field_docs` reads those docstrings for the command line. ``profiles`` holds
+    per-profile defaults (keys of :data:`PROFILES`) layered under explicit values; :meth:`check`
+    validates ranges.
     """
 
     profiles: ClassVar[dict[str, dict]] = {}
