@@ -465,4 +465,5 @@ def repeated(values) -> list:
     >>> repeated([8, 4, "a", 8, "a", 4, 2])
     ['a', 4, 8]
     """
-    return sorted({v for v in values if list(values).count(v) > 1}, key=repr)
+    values = list(values)
+    return sorted({v for v in values if values.count(v) > 1}, key=repr)

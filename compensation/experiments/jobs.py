@@ -563,12 +563,13 @@ def check_study_folder(out: Path, name: str, kind: str) -> None:
                           f"{held.get('name')!r}; choose another --out for the {kind} {name!r}")
 
 
-def write_study_record(out: Path, record: dict, created: str | None = None) -> Path:
+def write_study_record(out: Path, record: dict, created: str | None = None) -> dict:
     """Write ``out/study.json``: ``record`` plus ``versions`` and ``created`` (ISO time, UTC; now
-    unless given)."""
-    created = created or datetime.now(timezone.utc).isoformat(timespec="seconds")
-    write_json(out / "study.json", {**record, "versions": versions(), "created": created})
-    return out / "study.json"
+    unless given). Returns what it wrote."""
+    written = {**record, "versions": versions(),
+               "created": created or datetime.now(timezone.utc).isoformat(timespec="seconds")}
+    write_json(out / "study.json", written)
+    return written
 
 
 def tasks(fn, jobs: Sequence, gpus: float) -> list:

@@ -69,7 +69,6 @@ from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
 from sim.descriptors import DESCRIPTORS
 from sim.errors import ProcamError
-from sim.io import read_json
 from sim.light import AXIS_SHARES, SHARE_NAMES
 from sim.options import repeated
 from sim.seeds import SEED_MAX
@@ -573,7 +572,7 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     check_study_folder(out, study.name, "study")
     out.mkdir(parents=True, exist_ok=True)
     record = study_record(study, plan)
-    first = read_json(write_study_record(out, {**record, "executor": executor.name}), "study record")
+    first = write_study_record(out, {**record, "executor": executor.name})
     outcome = execute(plan, out, out / "data", spec, Scoring(study.n_test, study.closed_loop, target=study.target), executor,
                       list(plan.setups), progress, study.raw)
     if any(a.key in AXIS_SHARES for a in study.axes):  # the light its axis sets, now measured
