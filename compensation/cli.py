@@ -188,6 +188,17 @@ def _option_type(hint) -> dict:
     return {"type": hint}
 
 
+def _help_text(doc: str) -> str:
+    """A docstring as argparse help: its ``%`` escaped, since argparse formats help with ``%``.
+
+    Examples
+    --------
+    >>> _help_text("after 80 % of iters")
+    'after 80 %% of iters'
+    """
+    return doc.replace("%", "%%")
+
+
 def _training_options(p: argparse.ArgumentParser) -> None:
     """The profile, the options common to every method and every registered method's own options,
     generated from their dataclasses (type, choices and the field's docstring as help)."""
@@ -202,12 +213,13 @@ def _training_options(p: argparse.ArgumentParser) -> None:
     hints = typing.get_type_hints(TrainConfig)
     for name in COMMON:
         common.add_argument(f"--{name.replace('_', '-')}", dest=name, default=None,
-                            help=field_docs(TrainConfig)[name], **_option_type(hints[name]))
+                            help=_help_text(field_docs(TrainConfig)[name]),
+                            **_option_type(hints[name]))
     own = p.add_argument_group("method options (refused for a method that does not use them)")
     for name, owners in option_owners().items():
         cls = METHODS[owners[0]].options
         own.add_argument(f"--{name.replace('_', '-')}", dest=name, default=None,
-                         help=f"[{', '.join(owners)}] {field_docs(cls)[name]}",
+                         help=_help_text(f"[{', '.join(owners)}] {field_docs(cls)[name]}"),
                          **_option_type(typing.get_type_hints(cls)[name]))
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 

@@ -1,6 +1,7 @@
 """End to end: `procam render` writes the full layout, resumes without rewriting, fails cleanly."""
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import shutil
@@ -221,3 +222,17 @@ def test_photo_test_frames_change_the_test_split_only(tiny_render, tmp_path, cap
     assert main(["render", str(tiny_render / "tiny.toml"), "--out", str(copy), *TINY_RENDER,
                  "--test-frames", "photo"]) == 2
     assert "frames.json" in capsys.readouterr().err
+
+
+def test_every_command_prints_its_help():
+    """Each subcommand's help is formatted without error: help built from docstrings may hold a
+    ``%``, which argparse would read as a format directive."""
+    from compensation.cli import build_parser
+
+    parser = build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert {"render", "train", "bench", "study"} <= set(commands.choices)
+    for name, sub in commands.choices.items():
+        text = sub.format_help()
+        assert text.startswith("usage: procam " + name), name
+    assert "80 % of iters" in " ".join(commands.choices["train"].format_help().split())
