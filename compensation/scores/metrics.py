@@ -72,12 +72,38 @@ SSIM_CONVENTIONS = ("official", "skimage")
 scikit-image's (window positions inside the image only); see the module docstring."""
 
 
+def window_band(n: int, dtype: torch.dtype = torch.float64, device=None) -> Tensor:
+    """The valid 1-D Gaussian filter of length-``n`` signals as an (n, n − 10) banded matrix.
+
+    Column j holds :func:`gaussian_window` in rows j … j + 10, so ``signal @ window_band(n)`` is
+    the window's weighted mean at every position that fits inside the signal.
+
+    Examples
+    --------
+    >>> band = window_band(12)
+    >>> band.shape, [round(v, 12) for v in band.sum(0).tolist()]
+    (torch.Size([12, 2]), [1.0, 1.0])
+    >>> bool(torch.equal(band[1:, 1], band[:-1, 0]))
+    True
+    """
+    win = _WINDOW.flatten().to(device, dtype)
+    band = torch.zeros(n, n - WIN_SIZE + 1, dtype=dtype, device=device)
+    cols = torch.arange(n - WIN_SIZE + 1, device=device)
+    for k in range(WIN_SIZE):
+        band[cols + k, cols] = win[k]
+    return band
+
+
 def gaussian_filter(images: Tensor) -> Tensor:
     """Valid 11×11 Gaussian filtering of every channel: a vertical then a horizontal 1-D pass.
 
     The separable form of the 2-D window (the outer product of :func:`gaussian_window` with
-    itself): 22 instead of 121 multiply-adds per pixel, one grouped (per-channel) convolution per
-    pass.
+    itself). float64 images (the metrics) are filtered as two products with banded matrices
+    (:func:`window_band`), which run on the BLAS: on 64 images of 266² on one CPU thread 0.4 s,
+    against 1.7 s for grouped convolutions in the default memory layout and 4.0 s in the
+    channels-last one (float64 convolutions have no optimised CPU kernel). Other dtypes (the
+    losses, float32) run one grouped (per-channel) convolution per pass, which is the faster of
+    the two for the training step at 256² (forward and backward).
 
     Parameters
     ----------
@@ -95,7 +121,14 @@ def gaussian_filter(images: Tensor) -> Tensor:
     >>> x[0, 0, 5, 5] = 1.0  # the filtered centre is the window's central weight squared
     >>> bool(torch.isclose(gaussian_filter(x)[0, 0, 0, 0], gaussian_window()[0, 0, 0, 5] ** 2))
     True
+    >>> y = torch.rand(1, 2, 13, 12, dtype=torch.float64)  # banded and convolution forms agree
+    >>> bool(torch.allclose(gaussian_filter(y), gaussian_filter(y.float()).double(), atol=1e-6))
+    True
     """
+    height, width = images.shape[-2:]
+    if images.dtype == torch.float64:
+        vertical = window_band(height, images.dtype, images.device)
+        return vertical.T @ (images @ window_band(width, images.dtype, images.device))
     channels = images.shape[1]
     win = _WINDOW.to(images.device, images.dtype)
     vertical = win.reshape(1, 1, WIN_SIZE, 1).repeat(channels, 1, 1, 1)
@@ -113,9 +146,10 @@ def structural_similarity(pred: Tensor, target: Tensor, per_image: bool = False,
     each channel; under the ``"official"`` convention the images are first padded by 5 pixels by
     edge replication (see the module docstring). The five local moments (means, second moments,
     cross moment) are filtered in the channels-last memory layout, where the per-channel
-    convolutions run fastest on the CPU (forward and backward together measured 1.5–1.9× faster
-    than in the default layout at 128² and 256² on 2 cores); the values do not depend on the
-    layout. Differentiable: the SSIM losses build on it.
+    convolutions of float32 images (the losses) run fastest on the CPU (forward and backward
+    together measured 1.5–1.9× faster than in the default layout at 128² and 256² on 2 cores);
+    float64 images (the metrics) take the banded products of :func:`gaussian_filter` in either
+    layout. The values do not depend on the layout. Differentiable: the SSIM losses build on it.
 
     Parameters
     ----------
@@ -296,7 +330,8 @@ def srgb_to_lab(images: Tensor) -> np.ndarray:
     """CIE Lab (D65) of (N, 3, H, W) sRGB images in [0, 1], rounded to 8 bits first: (N, H, W, 3).
 
     colour-science's sRGB decoding and matrix (D65 white), then ``XYZ_to_Lab`` under D65; L in
-    [0, 100].
+    [0, 100]. The decoding is evaluated once for the 256 levels and looked up per pixel (the
+    same values as decoding every pixel, at a fraction of the time).
 
     Examples
     --------
@@ -306,8 +341,10 @@ def srgb_to_lab(images: Tensor) -> np.ndarray:
     """
     import colour
 
-    rgb = np.rint(images.detach().double().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy() * 255) / 255
-    return colour.XYZ_to_Lab(colour.sRGB_to_XYZ(rgb))
+    levels = (images.detach().double().clamp(0, 1) * 255).round().to(torch.uint8)
+    decoded = colour.models.eotf_sRGB(np.arange(256) / 255)
+    linear = decoded[levels.permute(0, 2, 3, 1).cpu().numpy()]
+    return colour.XYZ_to_Lab(colour.sRGB_to_XYZ(linear, apply_cctf_decoding=False))
 
 
 def delta_e_per_image(pred: Tensor, target: Tensor) -> Tensor:
