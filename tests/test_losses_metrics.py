@@ -105,6 +105,20 @@ def srgb_lightness(v: int) -> float:
     return 116 * y ** (1 / 3) - 16 if y > (6 / 29) ** 3 else y * (29 / 3) ** 3
 
 
+def test_lab_of_every_level_matches_colour_per_pixel():
+    """srgb_to_lab looks the decoding up per 8-bit level: the same Lab as colour-science decoding
+    every pixel, levels rounded half to even (values at half a level and outside [0, 1] included)."""
+    import colour
+
+    x = torch.rand(3, 3, 9, 10, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    x[0, 0, 0, :6] = torch.tensor([0.5, 1.5, 2.5, 254.5, -3.0, 300.0], dtype=torch.float64) / 255
+    rgb = np.rint(x.clamp(0, 1).permute(0, 2, 3, 1).numpy() * 255) / 255
+    expected = colour.XYZ_to_Lab(colour.sRGB_to_XYZ(rgb))
+    assert np.array_equal(metrics.srgb_to_lab(x), expected)
+    assert np.array_equal(metrics.srgb_to_lab(x.float()), colour.XYZ_to_Lab(colour.sRGB_to_XYZ(
+        np.rint(x.float().double().clamp(0, 1).permute(0, 2, 3, 1).numpy() * 255) / 255)))
+
+
 def test_delta_e_by_hand():
     """CIEDE2000 of neutral greys reduces to ΔL' / S_L with S_L = 1 + 0.015 (L̄ − 50)² / √(20 + (L̄ − 50)²)."""
     def grey(v, n=1):
