@@ -1,11 +1,12 @@
 """Evaluation-metric benchmark: ``compensation.scores.metrics.evaluate`` (PSNR, RMSE, SSIM, ΔE of a
 test set) against the implementation it replaced, timed side by side in one run.
 
-The reference is the earlier one, kept here only: SSIM's Gaussian passes as float64 grouped
-convolutions in the channels-last layout, and ΔE's sRGB decoding evaluated per pixel by
-colour-science. Both run interleaved on the same images (random predictions against random
-targets, ``--n`` images of ``--size``², in batches of 64 as a run evaluates them), and their
-values are compared; the figures are the best of ``--repeat`` runs of each.
+The reference is the earlier one: SSIM's Gaussian passes as float64 grouped convolutions in the
+channels-last layout (``metrics.grouped_filter``, the float32 path), and ΔE's sRGB decoding
+evaluated per pixel by colour-science (kept here only). Both run interleaved on the same images
+(random predictions against random targets, ``--n`` images of ``--size``², in batches of 64 as a
+run evaluates them), and their values are compared; the figures are the best of ``--repeat`` runs
+of each.
 
     .venv/bin/python benchmarks/metrics.py [--n 100] [--size 256] [--repeat 3]
 """
@@ -18,17 +19,8 @@ from unittest import mock
 import colour
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from compensation.scores import metrics
-
-
-def reference_filter(images: torch.Tensor) -> torch.Tensor:
-    """The earlier Gaussian passes: grouped convolutions, whatever the dtype."""
-    channels = images.shape[1]
-    win = metrics._WINDOW.to(images.device, images.dtype)
-    out = F.conv2d(images, win.reshape(1, 1, -1, 1).repeat(channels, 1, 1, 1), groups=channels)
-    return F.conv2d(out, win.repeat(channels, 1, 1, 1), groups=channels)
 
 
 def reference_lab(images: torch.Tensor) -> np.ndarray:
@@ -54,7 +46,7 @@ def main() -> None:
     pred = (target + 0.1 * torch.randn(target.shape, generator=g)).clamp(0, 1)
 
     def reference() -> dict:
-        with mock.patch.object(metrics, "gaussian_filter", reference_filter), \
+        with mock.patch.object(metrics, "gaussian_filter", metrics.grouped_filter), \
                 mock.patch.object(metrics, "srgb_to_lab", reference_lab):
             return metrics.evaluate(pred, target, 64)
 
