@@ -34,11 +34,10 @@ from pathlib import Path
 from compensation.data import load_setup_data
 from compensation.experiments.closed_loop import CAPTURES_DIR, N_CAPTURES
 from compensation.experiments.targets import TargetPolicy
-from compensation.scores.metrics import evaluate
 from compensation.experiments.official import official_complete, official_tag, write_official_outputs
 from compensation.training.config import TrainConfig
 from compensation.experiments.runs import (load_run, package_version, scores_are_current,
-                                          source_revision, train_run)
+                                          source_revision, train_run, uncompensated_scores)
 from sim.dataset import FrameSpec, write_setup
 from sim.errors import ProcamError
 from sim.io import atomic_write, check_output_folder, read_json, to_uint8, write_json, write_png
@@ -229,13 +228,15 @@ def fit(job: FitJob) -> dict:
     setup_dir, run_dir = Path(job.setup_dir), Path(job.run_dir)
     metrics = reusable(run_dir, job.cfg, setup_dir)
     trained = metrics is None
+    predicted = None
     if trained:
-        metrics = train_run(setup_dir, job.cfg, run_dir, job.progress, overwrite=True)
+        metrics, predicted = train_run(setup_dir, job.cfg, run_dir, job.progress, overwrite=True,
+                                       return_predicted=True)
     tag = official_tag(job.cfg, job.pretrained)
     worked = trained
     if job.official is not None and (trained or not official_complete(job.official, tag, metrics["n_test"])):
         data = load_setup_data(setup_dir, 1, metrics["n_test"])
-        write_official_outputs(run_dir, data, Path(job.official), tag)
+        write_official_outputs(run_dir, data, Path(job.official), tag, cam=predicted)
         worked = True
     if job.closed_loop and simulated(setup_dir) and (trained or not _closed_loop_done(run_dir, metrics, job.target)):
         metrics = add_closed_loop(run_dir, setup_dir, metrics["n_test"], job.target)
@@ -307,7 +308,7 @@ def baselines(job: BaselineJob) -> dict:
             return {**result, "reused": True}
     data = load_setup_data(setup_dir, n_train=1, n_test=job.n_test)
     captures, y = data.test.captures, data.test.frames
-    scores, oracle, best, light = evaluate(captures, y), None, None, None
+    scores, oracle, best, light = uncompensated_scores(captures, y), None, None, None
     if closed:
         from compensation.experiments.closed_loop import (closed_loop_target, iterative_refinement,
                                                          reachable_mask, reachable_overlay,

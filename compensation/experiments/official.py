@@ -10,11 +10,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from compensation.data import N_PLAIN, SetupData
 from compensation.methods import get_method
 from compensation.training.config import TrainConfig
 from compensation.experiments.runs import load_run
+from sim.errors import ProcamError
 from sim.io import write_png
 from sim.layout import image_name
 
@@ -57,15 +59,25 @@ def official_uint8(image: np.ndarray) -> np.ndarray:
     return (np.clip(np.asarray(image, np.float32), 0, 1) * np.float32(255)).astype(np.uint8)
 
 
-def write_official_outputs(run_dir: Path, data: SetupData, dest: Path, tag: str) -> None:
+def write_official_outputs(run_dir: Path, data: SetupData, dest: Path, tag: str,
+                           cam: torch.Tensor | None = None) -> None:
     """Write a run's π†(x̃) of the test captures to ``dest/cam/cmp/<tag>`` and its π†(y) of the
     test images y (the test frames) to ``dest/prj/cmp/<tag>``, as ``img_XXXX.png`` with the
     official code's 8-bit values (:func:`official_uint8`), so the files are byte for byte those the
-    official code would write from the same predictions."""
+    official code would write from the same predictions.
+
+    ``cam``, when given, is the run's π†(x̃) of ``data``'s test captures as the run predicted them
+    (:func:`~compensation.experiments.runs.train_run` returns it), written instead of predicting
+    them again."""
     method, config = load_run(run_dir)
     batch = config["train"].get("eval_batch", 64)
     for kind, inputs in (("cam", data.test.captures), ("prj", data.test.frames)):
-        frames = method.predict(inputs, data.surface, batch_size=batch).permute(0, 2, 3, 1).numpy()
+        predicted = cam if kind == "cam" and cam is not None else method.predict(inputs, data.surface,
+                                                                                   batch_size=batch)
+        if predicted.shape != inputs.shape:
+            raise ProcamError(f"{run_dir}: {tuple(predicted.shape)} predictions of the test captures "
+                              f"given for {tuple(inputs.shape)} captures")
+        frames = predicted.permute(0, 2, 3, 1).numpy()
         for i, frame in enumerate(frames, start=1):
             write_png(dest / kind / "cmp" / tag / image_name(i), official_uint8(frame))
 

@@ -48,6 +48,10 @@ SCORES = ("psnr", "rmse", "ssim", "deltaE")
 """The scores ``metrics.json`` records (of :func:`~compensation.scores.metrics.evaluate`)."""
 SSIM_CONVENTION = "official"
 """The SSIM convention of ``metrics.json`` (recorded there as ``ssim_convention``)."""
+_UNCOMPENSATED: dict[tuple, dict[str, float]] = {}
+"""Scores of :func:`uncompensated_scores` kept in this process, by the images' digests."""
+_UNCOMPENSATED_KEPT = 64
+"""At most this many test sets' uncompensated scores are kept (the oldest dropped first)."""
 
 
 def scores_are_current(metrics: dict) -> bool:
@@ -94,6 +98,34 @@ def source_revision() -> str:
             digest.update(f"{package.name}/{path.relative_to(package)}\n".encode())
             digest.update(path.read_bytes())
     return f"sha256 {digest.hexdigest()[:16]}"
+
+
+def _digest(images: torch.Tensor) -> str:
+    """A content digest of a CPU tensor (its shape, dtype and bytes)."""
+    values = images.detach().cpu().contiguous().numpy()
+    return hashlib.blake2b(values, digest_size=16, person=str((values.shape, values.dtype)).encode()[:16]
+                           ).hexdigest()
+
+
+def uncompensated_scores(captures: torch.Tensor, frames: torch.Tensor, batch_size: int = 64) -> dict[str, float]:
+    """The uncompensated scores: :func:`~compensation.scores.metrics.evaluate` of the test
+    captures x̃ against their projector inputs x under :data:`SSIM_CONVENTION`, computed once per
+    process for the same images (every run on a dataset and its baseline job score the same test
+    set; a copy is returned).
+
+    Examples
+    --------
+    >>> x = torch.zeros(2, 3, 16, 16)
+    >>> y = torch.full((2, 3, 16, 16), 0.5)
+    >>> uncompensated_scores(x, y) == evaluate(x, y, convention=SSIM_CONVENTION)
+    True
+    """
+    key = (_digest(captures), _digest(frames), batch_size)
+    if key not in _UNCOMPENSATED:
+        while len(_UNCOMPENSATED) >= _UNCOMPENSATED_KEPT:
+            del _UNCOMPENSATED[next(iter(_UNCOMPENSATED))]
+        _UNCOMPENSATED[key] = evaluate(captures, frames, batch_size, SSIM_CONVENTION)
+    return dict(_UNCOMPENSATED[key])
 
 
 def _device_name(device: torch.device) -> str:
@@ -200,7 +232,7 @@ def _prepare_partial(partial: Path, config: dict) -> Path:
 
 
 def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, progress: bool = True,
-              overwrite: bool = False) -> dict:
+              overwrite: bool = False, return_predicted: bool = False) -> dict | tuple[dict, torch.Tensor]:
     """Train ``cfg.method`` on a setup, evaluate on all its test pairs and write a run directory.
 
     The run is built in :func:`partial_dir` and renamed into place at the end, so an interrupted
@@ -219,6 +251,8 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
         Show a progress bar with the loss and samples per second.
     overwrite : bool
         Replace an existing finished run at ``out_dir``.
+    return_predicted : bool
+        Also return the run's π†(x̃) of the test captures, (N, 3, H, W) in [0, 1].
 
     Returns
     -------
@@ -227,7 +261,8 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
         ``ssim``, ``deltaE`` of π†(x̃) vs x, ``ssim_convention``, ``psnr_per_image`` (each test
         pair's PSNR), ``uncompensated`` (the same
         scores for x̃ vs x), ``train_seconds``,
-        ``samples_per_second``, ``final_loss``, ``n_train``, ``n_test``, ``iters``, ``batch``.
+        ``samples_per_second``, ``final_loss``, ``n_train``, ``n_test``, ``iters``, ``batch``;
+        with ``return_predicted``, the pair (metrics, π†(x̃)).
 
     Raises
     ------
@@ -265,7 +300,7 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
     stats = method.fit(data, resolved, progress, checkpoint)
     predicted = method.predict(data.test.captures, data.surface, batch_size=cfg.eval_batch)
     scores = evaluate(predicted, data.test.frames, cfg.eval_batch, SSIM_CONVENTION)
-    plain = evaluate(data.test.captures, data.test.frames, cfg.eval_batch, SSIM_CONVENTION)
+    plain = uncompensated_scores(data.test.captures, data.test.frames, cfg.eval_batch)
     metrics = {"method": cfg.method, "setup": data.name,
                **{k: float(scores[k]) for k in SCORES}, "ssim_convention": SSIM_CONVENTION,
                "psnr_per_image": psnr_per_image(predicted, data.test.frames),
@@ -297,7 +332,7 @@ def train_run(setup_dir: str | Path, cfg: TrainConfig, out_dir: str | Path, prog
         raise ProcamError(f"{exc.filename or out_dir}: cannot write the run ({exc.strerror or exc}); "
                           f"the training state is kept in {partial}: run the same command again "
                           "to finish without training again") from None
-    return metrics
+    return (metrics, predicted) if return_predicted else metrics
 
 
 def read_run_config(run_dir: str | Path) -> dict:
