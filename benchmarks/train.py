@@ -20,6 +20,9 @@ Steps (each adds to the one above):
   CPU training step (:func:`~compensation.methods.compennet.fit_network`);
 * ``compile`` (``--compile``): ``torch.compile`` of the network on top.
 
+With ``--nchw-ab``, procam's step (``retained heap``) with the NCHW weight gradients forced on and
+off, taking turns, per size: the A/B behind :data:`~compensation.training.conv_grad.NCHW_WEIGHT_GRADIENT_CPUS`.
+
 Then, with ``--data``, the `quick` profile's training time and test PSNR/SSIM on the default setup.
 
 With ``--runs K`` the whole comparison runs K times in fresh processes, and a last row per size
@@ -27,7 +30,8 @@ gives each step's median over the runs: the naive loop's speed depends on how th
 its page faults, which varies from process to process (±15 % between runs at 128²).
 
     .venv/bin/python benchmarks/train.py [--sizes 128,256] [--batches 16,8] [--rounds 7] [--runs K]
-                                         [--threads N] [--pause S] [--compile] [--data out/data]
+                                         [--threads N] [--pause S] [--compile] [--nchw-ab]
+                                         [--data out/data]
 """
 from __future__ import annotations
 
@@ -60,8 +64,10 @@ def previous_l1_ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return l1(pred, target) + 1 - pytorch_msssim.ssim(*padded, data_range=1.0, win=win)
 
 
-def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: torch.Tensor):
-    """One training step (forward, ℓ1+SSIM, backward, Adam) of the step ``name`` of :data:`STEPS`."""
+def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: torch.Tensor,
+              nchw: bool | None = None):
+    """One training step (forward, ℓ1+SSIM, backward, Adam) of the step ``name`` of :data:`STEPS`;
+    ``nchw`` forces the NCHW weight gradients on or off (None: this CPU's rule)."""
     level = STEPS.index(name)
     model = copy.deepcopy(base)
     for m in model.modules():
@@ -76,7 +82,7 @@ def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: t
     loss_fn = l1_ssim if level >= STEPS.index("ssim") else previous_l1_ssim
     patches = ExitStack()
     if level >= STEPS.index("conv backward"):
-        patches.enter_context(faster_backward(model))
+        patches.enter_context(faster_backward(model, nchw))
     forward = torch.compile(model) if name == "compile" else model
     opt = torch.optim.Adam(model.parameters(), lr=1e-3, weight_decay=1e-4)
 
@@ -90,14 +96,14 @@ def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: t
     return step
 
 
-def build_step(name: str, size: int, batch: int, threads: int | None):
+def build_step(name: str, size: int, batch: int, threads: int | None, nchw: bool | None = None):
     """Step ``name`` on seeded random images of ``size``² at ``batch`` (in its worker process)."""
     if threads:
         torch.set_num_threads(threads)
     torch.manual_seed(0)
     base = CompenNet(surface=True)
     x, y, s = torch.rand(batch, 3, size, size), torch.rand(batch, 3, size, size), torch.rand(1, 3, size, size)
-    return make_step(name, base, x, y, s)
+    return make_step(name, base, x, y, s, nchw)
 
 
 def compare(size: int, batch: int, rounds: int, steps: tuple[str, ...], threads: int | None,
@@ -106,6 +112,14 @@ def compare(size: int, batch: int, rounds: int, steps: tuple[str, ...], threads:
     kept = STEPS.index("retained heap")
     seconds = interleaved({name: (build_step, (name, size, batch, threads), STEPS.index(name) >= kept)
                            for name in steps}, rounds, pause)
+    return {name: batch / statistics.median(t) for name, t in seconds.items()}
+
+
+def nchw_ab(size: int, batch: int, rounds: int, threads: int | None, pause: float) -> dict[str, float]:
+    """Median samples/second of procam's step with the NCHW weight gradients on and off, taking
+    turns for ``rounds`` rounds."""
+    seconds = interleaved({f"NCHW {label}": (build_step, ("retained heap", size, batch, threads, on), True)
+                           for label, on in (("on", True), ("off", False))}, rounds, pause)
     return {name: batch / statistics.median(t) for name, t in seconds.items()}
 
 
@@ -118,6 +132,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--pause", type=float, default=0.05, help="seconds of rest before each timed step")
     ap.add_argument("--compile", action="store_true", help="also time torch.compile (slow to build)")
+    ap.add_argument("--nchw-ab", action="store_true", help="also time procam's step with the NCHW "
+                    "weight gradients on against off, whatever this CPU's rule")
     ap.add_argument("--data", default=None, help="a dataset root with default/ rendered at the quick "
                     "profile (e.g. the demo's out/data): also time the quick profile on it")
     args = ap.parse_args()
@@ -145,6 +161,13 @@ def main() -> None:
         if args.runs > 1:
             row("median", *({n: statistics.median(r[i][n] for r in runs) for n in steps}
                              for i in (0, 1)))
+    if args.nchw_ab:
+        print("procam's step, NCHW weight gradients on against off (samples/s, median of "
+              f"{args.rounds} interleaved steps):")
+        for size, batch in zip(sizes, batches * len(sizes) if len(batches) == 1 else batches):
+            rates = nchw_ab(size, batch, args.rounds, args.threads, args.pause)
+            print(f"  {size}², batch {batch}: on {rates['NCHW on']:.2f}, off {rates['NCHW off']:.2f}, "
+                  f"on/off {rates['NCHW on'] / rates['NCHW off']:.3f}×", flush=True)
     print(f"load average after {os.getloadavg()[0]:.1f}")
     if args.data:
         import tempfile

@@ -47,7 +47,7 @@ def test_train_benchmark_runs_every_step(monkeypatch):
     import train
 
     out = output("train.py", "--sizes", "16", "--batches", "2", "--rounds", "1", "--runs", "2",
-                 "--threads", "1")
+                 "--threads", "1", "--nchw-ab")
     lines = out.splitlines()
     header = lines[1]
     assert header[:11].split() == ["size", "batch"]
@@ -65,6 +65,10 @@ def test_train_benchmark_runs_every_step(monkeypatch):
     for step, (rate, ratio) in enumerate(median[0]):
         assert math.isclose(rate, statistics.median(r[step][0] for r in runs), abs_tol=0.006)
         assert math.isclose(ratio, statistics.median(r[step][1] for r in runs), abs_tol=0.006)
+    ab = re.findall(r"^  16², batch 2: on ([\d.]+), off ([\d.]+), on/off ([\d.]+)×$", out, flags=re.M)
+    assert len(ab) == 1, out
+    on, off, ratio = map(float, ab[0])
+    assert on > 0 and off > 0 and math.isclose(ratio, on / off, rel_tol=0.01, abs_tol=0.002)
 
 
 def test_procams_step_keeps_its_layers_changed(monkeypatch):
@@ -79,6 +83,9 @@ def test_procams_step_keeps_its_layers_changed(monkeypatch):
     assert "forward" in vars(step.model.transConv2)
     assert step() > 0
     assert "forward" not in vars(train.make_step("inplace relu", CompenNet(), x, y, s).model.transConv2)
+    # the A/B's two arms: the wide convolutions changed or not, whatever this CPU's rule
+    assert "forward" in vars(train.make_step("retained heap", CompenNet(), x, y, s, nchw=True).model.conv4)
+    assert "forward" not in vars(train.make_step("retained heap", CompenNet(), x, y, s, nchw=False).model.conv4)
 
 
 @pytest.mark.slow

@@ -203,11 +203,19 @@ def nchw_weight_gradients_pay() -> bool:
 
 
 @contextmanager
-def faster_backward(model: torch.nn.Module) -> Iterator[tuple[int, int]]:
+def faster_backward(model: torch.nn.Module, nchw: bool | None = None) -> Iterator[tuple[int, int]]:
     """While inside, ``model`` takes the backward replacements that measured faster on this CPU
     in the channels-last layout that training uses: :func:`conv_transpose_gradients` always,
     :func:`nchw_weight_gradients` where the CPU's capability is in
     :data:`NCHW_WEIGHT_GRADIENT_CPUS`.
+
+    Parameters
+    ----------
+    model : torch.nn.Module
+        The network to change while inside.
+    nchw : bool, optional
+        Take the NCHW weight gradients (True) or not (False) whatever the CPU; None follows
+        :func:`nchw_weight_gradients_pay` (``benchmarks/train.py --nchw-ab`` times both).
 
     Yields
     ------
@@ -220,9 +228,12 @@ def faster_backward(model: torch.nn.Module) -> Iterator[tuple[int, int]]:
     >>> with faster_backward(CompenNet()) as changed:
     ...     changed == (6 if nchw_weight_gradients_pay() else 0, 2)
     True
+    >>> with faster_backward(CompenNet(), nchw=True) as changed:
+    ...     changed
+    (6, 2)
     """
     with ExitStack() as stack:
         transposed = stack.enter_context(conv_transpose_gradients(model))
-        pays = nchw_weight_gradients_pay()
+        pays = nchw_weight_gradients_pay() if nchw is None else nchw
         wide = stack.enter_context(nchw_weight_gradients(model)) if pays else 0
         yield wide, transposed
