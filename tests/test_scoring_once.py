@@ -72,3 +72,18 @@ def test_runs_and_baselines_share_one_uncompensated_scoring(tmp_path, counted, m
         written = np.stack([read_png(folder / f"img_{i:04d}.png") for i in (1, 2, 3)])
         again = method.predict(data.test.captures, data.surface).permute(0, 2, 3, 1).numpy()
         assert np.array_equal(written, np.uint8(again * 255))
+
+
+def test_official_outputs_refuse_predictions_of_another_test_set(tmp_path):
+    from compensation.experiments.official import write_official_outputs
+    from compensation.experiments.runs import train_run
+    from sim.errors import ProcamError
+
+    setup = make_dataset(tmp_path / "data", n_train=8, n_test=3)
+    metrics, predicted = train_run(setup, make_config("quick", "tps", n_train=8, n_test=3), tmp_path / "run",
+                                   progress=False, return_predicted=True)
+    assert predicted.shape == (3, 3, 32, 32)
+    data = load_setup_data(setup, n_train=1, n_test=3)
+    with pytest.raises(ProcamError, match=r"\(2, 3, 32, 32\) predictions given for \(3, 3, 32, 32\) test captures"):
+        write_official_outputs(tmp_path / "run", data, tmp_path / "official", "TPS", cam=predicted[:2])
+    assert not (tmp_path / "official").exists()  # nothing half-written

@@ -71,12 +71,12 @@ def write_official_outputs(run_dir: Path, data: SetupData, dest: Path, tag: str,
     them again."""
     method, config = load_run(run_dir)
     batch = config["train"].get("eval_batch", 64)
+    if cam is not None and cam.shape != data.test.captures.shape:
+        raise ProcamError(f"{run_dir}: {tuple(cam.shape)} predictions given for "
+                          f"{tuple(data.test.captures.shape)} test captures")
     for kind, inputs in (("cam", data.test.captures), ("prj", data.test.frames)):
         predicted = cam if kind == "cam" and cam is not None else method.predict(inputs, data.surface,
                                                                                    batch_size=batch)
-        if predicted.shape != inputs.shape:
-            raise ProcamError(f"{run_dir}: {tuple(predicted.shape)} predictions of the test captures "
-                              f"given for {tuple(inputs.shape)} captures")
         frames = predicted.permute(0, 2, 3, 1).numpy()
         for i, frame in enumerate(frames, start=1):
             write_png(dest / kind / "cmp" / tag / image_name(i), official_uint8(frame))
