@@ -70,7 +70,7 @@ OFF = {("surface", "relief"): 0.0, ("projector", "distortion_k1"): 0.0, ("projec
 """Each effect's off value."""
 
 
-def _with(setup, name: str, values: dict):
+def with_values(setup, name: str, values: dict):
     """``setup`` renamed, with ``{(section, key): value}`` replaced (a surface's own keys, such as
     ``relief``, in its ``shape``)."""
     sections = {}
@@ -93,13 +93,13 @@ def setups() -> list:
     """The base, one setup per effect (:data:`EFFECTS`, then :data:`CONTENT`), the default setup
     (all its effects) and the default setup with every content-dependent effect, in table order."""
     default = load_setup(scene_path("default"))
-    base = _with(default, "effects_base", OFF)
+    base = with_values(default, "effects_base", OFF)
     out = [base]
     rows = [{k: _value(default, *k) for k in keys} for keys in EFFECTS.values()] + list(CONTENT.values())
     for i, on in enumerate(rows, start=1):
-        out.append(_with(base, f"effects_{i:02d}", on))
+        out.append(with_values(base, f"effects_{i:02d}", on))
     out.append(dataclasses.replace(default, name="effects_all"))
-    out.append(_with(default, "effects_all_content", {k: v for on in CONTENT.values() for k, v in on.items()}))
+    out.append(with_values(default, "effects_all_content", {k: v for on in CONTENT.values() for k, v in on.items()}))
     return out
 
 

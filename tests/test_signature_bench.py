@@ -1,0 +1,73 @@
+"""benchmarks/signature.py on a tiny two-setup suite: one bench per variant in its own folder, the
+variant's values in the rendered setups, and the table's means and paired differences recomputed
+from the benches' own result files."""
+from __future__ import annotations
+
+import csv
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from helpers import tiny_toml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _rows(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.slow
+def test_signature_per_variant(tmp_path):
+    (tmp_path / "base.toml").write_text(tiny_toml("base", 16))
+    suite = tmp_path / "two.toml"
+    suite.write_text('base = "base.toml"\n\n[[setup]]\nname = "a"\nsurface = { texture_seed = 1 }\n\n'
+                     '[[setup]]\nname = "b"\nsurface = { texture_seed = 2 }\n')
+    out = tmp_path / "out"
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "signature.py"), "--out", str(out), "--suite", str(suite),
+           "--setups", "a,b", "--variants", "default,white_boost", "--methods", "tps,tps-textured",
+           "--profile", "quick", "--size", "16", "--n-train", "8", "--n-test", "3"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_WAIT_POLICY": "PASSIVE"}
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    # the variant's value reached the renderer, and only there
+    for setup in ("a", "b"):
+        assert "white_boost = 0.7" in (out / "white_boost" / "data" / setup / "setup.toml").read_text()
+        assert "white_boost = 0.7" not in (out / "default" / "data" / setup / "setup.toml").read_text()
+    table = {r["variant"]: r for r in _rows(out / "signature.csv")}
+    assert list(table) == ["default", "white_boost"]
+    for variant, row in table.items():
+        results = [r for r in _rows(out / variant / "results.csv") if r["status"] == "ok"]
+        assert row["setups"] == "2"
+        for method in ("tps", "tps-textured"):
+            mean = statistics.fmean(float(r["psnr"]) for r in results if r["method"] == method)
+            assert float(row[f"PSNR {method}"]) == pytest.approx(mean, abs=0.006)
+        images = _rows(out / variant / "per_image.csv")
+        score = {(r["method"], r["setup"], r["image"]): float(r["psnr"]) for r in images}
+        diffs = [score["tps-textured", s, i] - score["tps", s, i] for s in "ab" for i in ("1", "2", "3")]
+        assert float(row["tps-textured − tps mean"]) == pytest.approx(statistics.fmean(diffs), abs=6e-4)
+        assert float(row["tps-textured − tps lo"]) <= float(row["tps-textured − tps mean"]) \
+            <= float(row["tps-textured − tps hi"])
+        assert float(row["tps-textured − tps share"]) == pytest.approx(sum(d > 0 for d in diffs) / 6, abs=6e-4)
+        assert row["compennet − tps-textured mean"] == ""  # not run: left blank
+    # the white segment changes the captures, so the scores
+    assert table["white_boost"]["PSNR tps"] != table["default"]["PSNR tps"]
+    md = (out / "signature.md").read_text()
+    assert "tps-textured − tps (paper +1.68)" in md and "compennet − tps-textured (paper +1.74)" in md
+    assert "--variants default,white_boost" in md
+
+
+def test_unknown_variant_or_setup_is_refused_by_name(tmp_path):
+    script = str(ROOT / "benchmarks" / "signature.py")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, script, "--out", str(tmp_path), "--variants", "default,glow"],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 2 and "--variants: glow unknown; expected some of default, dynamic_lamp" in proc.stderr
+    proc = subprocess.run([sys.executable, script, "--out", str(tmp_path), "--setups", "light9_pos1_nowhere"],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 2 and "--setups: light9_pos1_nowhere not in the suite paper" in proc.stderr
+    assert not any(tmp_path.iterdir())  # nothing written
