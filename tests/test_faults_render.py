@@ -612,6 +612,8 @@ import sim.io
 
 pattern, nth, argv = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
 write, calls = sim.io.atomic_write, itertools.count(1)
+# as in a terminal: a runner started in the background of a shell passes SIGINT on ignored
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 def atomic_write(path, data):
     if Path(path).match(pattern) and next(calls) == nth:  # Ctrl-C before writing this file
