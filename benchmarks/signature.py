@@ -33,6 +33,7 @@ from compensation.methods import get_method
 from compensation.reports.paired import paired_comparison, paired_differences
 from compensation.reports.tables import PAPER_TABLE1
 from effects import CONTENT, with_values
+from sim.errors import ProcamError
 from sim.io import write_text
 from sim.setup import load_setups
 
@@ -132,8 +133,11 @@ def main() -> None:
         ap.error(f"--setups: {', '.join(missing)} not in the suite {args.suite}")
     cfg = BenchConfig(profile=args.profile, methods=tuple(m.strip() for m in args.methods.split(",")),
                       sizes=(args.n_train,), tables=("1",), size=args.size, n_test=args.n_test)
-    for variant in variants:
-        run_bench(variant_setups([suite[n] for n in names], variant), args.out / variant, cfg)
+    try:
+        for variant in variants:
+            run_bench(variant_setups([suite[n] for n in names], variant), args.out / variant, cfg)
+    except ProcamError as exc:
+        ap.exit(1, f"signature: {exc}\n")
     how = (f"`python benchmarks/signature.py --out OUT --suite {args.suite} --setups {','.join(names)} "
            f"--variants {','.join(variants)} --methods {','.join(cfg.methods)} --profile {args.profile}"
            + (f" --size {args.size}" if args.size else "") + f" --n-train {args.n_train}"
