@@ -71,3 +71,14 @@ def test_unknown_variant_or_setup_is_refused_by_name(tmp_path):
                           capture_output=True, text=True, env=env, timeout=300)
     assert proc.returncode == 2 and "--setups: light9_pos1_nowhere not in the suite paper" in proc.stderr
     assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_a_variant_folder_of_another_bench_is_refused_without_traceback(tmp_path):
+    (tmp_path / "default").mkdir()
+    (tmp_path / "default" / "study.json").write_text('{"name": "other", "kind": "bench"}')
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "signature.py"), "--out", str(tmp_path),
+                           "--variants", "default", "--setups", "light1_pos1_squares"],
+                          capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=300)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert "signature: " in proc.stderr and "holds the bench 'other'" in proc.stderr
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["default", "study.json"]
