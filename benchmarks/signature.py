@@ -22,15 +22,14 @@ setups and images), the share of images where the first method is ahead and the 
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import statistics
-from collections import defaultdict
 from pathlib import Path
 
 from compensation.experiments.bench import BenchConfig, run_bench
 from compensation.methods import get_method
 from compensation.reports.paired import paired_comparison, paired_differences
+from compensation.reports.summary import attach_per_image, read_results
 from compensation.reports.tables import PAPER_TABLE1
 from effects import CONTENT, with_values
 from sim.errors import ProcamError
@@ -56,26 +55,18 @@ def variant_setups(suite: list, variant: str) -> list:
     return [with_values(s, s.name, VARIANTS[variant]) for s in suite]
 
 
-def _read(path: Path) -> list[dict]:
-    if not path.is_file():
-        return []
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
-
-
 def summarise(out: Path, variant: str) -> dict:
     """One variant's row: per method its mean PSNR over the setups (``psnr:<method>``), and per pair
     of :data:`PAIRS` the paired comparison (``<A>-<B>``: ``mean``, ``lo``, ``hi``, ``share``,
     ``setups``, ``images``, ``p``), from the bench's ``results.csv`` and ``per_image.csv``."""
-    ok = [r for r in _read(out / variant / "results.csv") if r.get("status") == "ok" and r.get("table") == "1"]
-    row = {"variant": variant}
-    for method in dict.fromkeys(r["method"] for r in ok):
-        row[f"psnr:{method}"] = statistics.fmean(float(r["psnr"]) for r in ok if r["method"] == method)
-    row["setups"] = len({r["setup"] for r in ok})
-    images: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
-    for r in _read(out / variant / "per_image.csv"):
-        if r.get("table") == "1" and r.get("psnr"):
-            images[r["method"]][r["setup"]].append(float(r["psnr"]))
+    folder = out / variant
+    ok = [r for r in attach_per_image(read_results(folder / "results.csv", []), folder / "per_image.csv")
+          if r["status"] == "ok" and r["table"] == "1"]
+    row = {"variant": variant, "setups": len({r["setup"] for r in ok})}
+    methods = list(dict.fromkeys(r["method"] for r in ok))
+    for method in methods:
+        row[f"psnr:{method}"] = statistics.fmean(r["psnr"] for r in ok if r["method"] == method)
+    images = {m: {r["setup"]: r["per_image"].get("psnr", []) for r in ok if r["method"] == m} for m in methods}
     for a, b in PAIRS:
         groups = paired_differences(images.get(a, {}), images.get(b, {}))
         row[f"{a}-{b}"] = paired_comparison(groups) if groups else None
@@ -136,6 +127,7 @@ def main() -> None:
     try:
         for variant in variants:
             run_bench(variant_setups([suite[n] for n in names], variant), args.out / variant, cfg)
+        rows = [summarise(args.out, v) for v in variants]
     except ProcamError as exc:
         ap.exit(1, f"signature: {exc}\n")
     how = (f"`python benchmarks/signature.py --out OUT --suite {args.suite} --setups {','.join(names)} "
@@ -143,7 +135,7 @@ def main() -> None:
            + (f" --size {args.size}" if args.size else "") + f" --n-train {args.n_train}"
            + (f" --n-test {args.n_test}" if args.n_test else "") + f"`: {cfg.canonical}² canonical, "
            f"{args.n_train} training / {cfg.tests} test pairs per setup.")
-    write(args.out, [summarise(args.out, v) for v in variants], how)
+    write(args.out, rows, how)
     print((args.out / "signature.md").read_text())
 
 

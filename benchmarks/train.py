@@ -152,7 +152,8 @@ def main() -> None:
         cells = [f"{rates[n]:.2f} ({ratios[n]:.2f}×)" for n in steps]
         print(f"{label:>11}" + "".join(f"{c:>20}" for c in cells), flush=True)
 
-    for size, batch in zip(sizes, batches * len(sizes) if len(batches) == 1 else batches):
+    shapes = list(zip(sizes, batches * len(sizes) if len(batches) == 1 else batches))
+    for size, batch in shapes:
         runs = []
         for _ in range(args.runs):
             rates = compare(size, batch, args.rounds, steps, args.threads, args.pause)
@@ -164,7 +165,7 @@ def main() -> None:
     if args.nchw_ab:
         print("procam's step, NCHW weight gradients on against off (samples/s, median of "
               f"{args.rounds} interleaved steps):")
-        for size, batch in zip(sizes, batches * len(sizes) if len(batches) == 1 else batches):
+        for size, batch in shapes:
             rates = nchw_ab(size, batch, args.rounds, args.threads, args.pause)
             print(f"  {size}², batch {batch}: on {rates['NCHW on']:.2f}, off {rates['NCHW off']:.2f}, "
                   f"on/off {rates['NCHW on'] / rates['NCHW off']:.3f}×", flush=True)
