@@ -20,6 +20,10 @@ SIZES = {"square": (48, 48), "wide": (48, 32)}
 """Canonical (width, height) views of one setup."""
 SMALL = dict(n_train=16, n_test=4, iters=100, batch=8, device="cpu")
 """A budget of seconds per method (options a method does not take are dropped)."""
+PIX2PIX_ITERS = 30
+"""pix2pix's iterations: at 30 as at 100 it stays below uncompensated on both views (measured
+surrogate gain −1.8 / −1.4 dB square / wide at 30, −1.5 / −1.2 at 100), so only the equality of the
+views is asked of it, which 30 iterations test as well, in a third of the time."""
 COMPENNET_SEEDS = (0, 1, 2)
 """CompenNet's gain is the median over these training seeds: at this budget one start in a few
 ends with dead units and no gain (seed 0 of CompenNet at 48x32: loss stuck at 0.70, the other
@@ -53,7 +57,8 @@ def gains(tmp_path_factory):
             found = []
             for seed in seeds:
                 run = root / "runs" / f"{name}-seed{seed}"
-                cfg = make_config("quick", name, **applicable(name, {**SMALL, "seed": seed}))
+                budget = {**SMALL, "seed": seed, **({"iters": PIX2PIX_ITERS} if name == "pix2pix" else {})}
+                cfg = make_config("quick", name, **applicable(name, budget))
                 metrics = train_run(setup_dir, cfg, run, progress=False)
                 method, _ = load_run(run)
                 found.append((metrics["psnr"] - metrics["uncompensated"]["psnr"],

@@ -1,6 +1,6 @@
 """The built wheel is complete: installed into a fresh virtual environment, away from the checkout,
-`procam render` writes a dataset and the shipped scenes and studies resolve inside the installed
-package."""
+it holds every module and shipped scene of the checkout, `procam render` writes a dataset and the
+shipped scenes and studies resolve inside the installed package."""
 from __future__ import annotations
 
 import os
@@ -66,14 +66,25 @@ def test_the_wheel_renders_outside_the_checkout(tmp_path):
     site = tmp_path / "venv" / "lib"
     assert package.is_relative_to(site) and default.is_relative_to(site), located
     assert (studies / "noise.toml").is_file()
+    installed = package.parent.parent  # the environment's site-packages
+    for name in ("sim", "compensation"):  # every module, none left behind by the package list
+        assert _files(ROOT / name, "*.py") == _files(installed / name, "*.py"), name
+    assert _files(ROOT / "scenes", "*.toml") == _files(default.parent, "*.toml")
 
-    run(str(bin_dir / "procam"), "render", "default", "--size", "16", "--n-train", "2", "--n-test", "1",
+    # the `ideal` scene (256² panel and camera): a render of seconds through the installed console
+    # script; the modules its stages do not import are checked above
+    run(str(bin_dir / "procam"), "render", "ideal", "--size", "16", "--n-train", "2", "--n-test", "1",
         "--out", str(tmp_path / "data"), "--quiet")
     data = tmp_path / "data"
     for split, n in (("ref", 126), ("train", 2), ("test", 1)):
         assert len(list((data / split).glob("img_*.png"))) == n
-        assert len(list((data / "default" / "cam" / "warp" / split).glob("img_*.png"))) == n
-    assert not (data / "default" / "cam" / "raw").exists()  # kept only with --raw
-    for name in ("frames.json", "default/setup.toml", "default/render.json", "default/meta.json",
-                 "default/registration/exact_map.npz"):
+        assert len(list((data / "ideal" / "cam" / "warp" / split).glob("img_*.png"))) == n
+    assert not (data / "ideal" / "cam" / "raw").exists()  # kept only with --raw
+    for name in ("frames.json", "ideal/setup.toml", "ideal/render.json", "ideal/meta.json",
+                 "ideal/registration/exact_map.npz"):
         assert (data / name).is_file(), name
+
+
+def _files(folder: Path, pattern: str) -> set[str]:
+    """The paths under ``folder`` matching ``pattern``, relative to it."""
+    return {p.relative_to(folder).as_posix() for p in folder.rglob(pattern) if "__pycache__" not in p.parts}

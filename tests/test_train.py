@@ -351,7 +351,7 @@ def test_train_config_checks_its_options():
         train_run("unused", TrainConfig(method="tps", options=CompenNetOptions()), "unused")
     with pytest.raises(ProcamError, match="options must be the method's Options dataclass, got dict"):
         TrainConfig(method="tps", options={"smoothing": 0.1})
-    assert set(COMMON) == {"n_train", "n_test", "seed", "device", "eval_batch"}
+    assert set(COMMON) == {"n_train", "n_test", "seed", "device", "eval_batch", "checkpoint_every"}
     for name in METHODS:  # to_dict / config_from_dict round trip, for every method's defaults
         cfg = make_config("quick", name)
         assert config_from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg

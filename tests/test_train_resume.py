@@ -18,11 +18,11 @@ from compensation.experiments.runs import CHECKPOINT_FILE, partial_dir
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _train(setup_dir: Path, out: Path, method: str, iters: int) -> subprocess.Popen:
-    """``procam train`` in a child process (CPU, quiet)."""
+def _train(setup_dir: Path, out: Path, method: str, iters: int, every: int = 8) -> subprocess.Popen:
+    """``procam train`` in a child process (CPU, quiet), a checkpoint every ``every`` iterations."""
     cmd = [sys.executable, "-m", "compensation.cli", "train", str(setup_dir), "--method", method,
            "--out", str(out), "--iters", str(iters), "--batch", "4", "--n-train", "16",
-           "--n-test", "4", "--device", "cpu", "--quiet"]
+           "--n-test", "4", "--device", "cpu", "--checkpoint-every", str(every), "--quiet"]
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
     return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
@@ -39,7 +39,7 @@ def _wait_for(path: Path, proc: subprocess.Popen, timeout: float = 120.0) -> Non
 @pytest.mark.slow
 @pytest.mark.parametrize("method,how", [("compennet", signal.SIGKILL), ("pix2pix", signal.SIGTERM)])
 def test_resume_is_bit_identical(setup_dir, tmp_path, method, how):
-    iters = 80  # one checkpoint, at 50: the child is stopped after it, 30 iterations before the end
+    iters = 20  # checkpoints at 8 and 16: the child is stopped after the first it writes
     reference = _train(setup_dir, tmp_path / "whole", method, iters)
     out, err = reference.communicate()
     assert reference.returncode == 0, err
@@ -53,9 +53,10 @@ def test_resume_is_bit_identical(setup_dir, tmp_path, method, how):
     if how == signal.SIGTERM:  # a clean stop says where the state is and how to resume
         assert proc.returncode == 2 and "stopped by SIGTERM" in err and "Traceback" not in err
     state = torch.load(partial_dir(run) / CHECKPOINT_FILE, weights_only=True)
-    assert 50 <= state["iteration"] < iters
+    assert 8 <= state["iteration"] < iters
 
-    resumed = _train(setup_dir, run, method, iters)
+    # another checkpoint interval is the same run: resumed, not started again
+    resumed = _train(setup_dir, run, method, iters, every=5)
     _, err = resumed.communicate()
     assert resumed.returncode == 0, err
     assert not partial_dir(run).exists()
@@ -81,3 +82,19 @@ def test_changed_config_discards_partial_state(setup_dir, tmp_path):
     train_run(setup_dir, cfg, run, progress=False)
     assert (run / "metrics.json").exists() and not partial.exists()
     assert not (run / CHECKPOINT_FILE).exists()
+
+
+def test_checkpoint_interval_and_device_name_do_not_make_another_run(tmp_path):
+    """A partial run is resumed under another checkpoint interval or thread count; another seed or
+    device type replaces it."""
+    from compensation.experiments.runs import _prepare_partial
+
+    base = {"train": {"method": "compennet", "seed": 0, "device": "cpu", "checkpoint_every": 50},
+            "dataset": "/data/s", "device": "cpu (2 threads)"}
+    kept = {**base, "train": {**base["train"], "checkpoint_every": 5}, "device": "cpu (16 threads)"}
+    for other, resumed in ((kept, True), ({**base, "train": {**base["train"], "seed": 1}}, False),
+                           ({**base, "train": {**base["train"], "device": "cuda:0"}}, False)):
+        partial = tmp_path / f"run{len(list(tmp_path.iterdir()))}"
+        (_prepare_partial(partial, base)).write_bytes(b"state")
+        assert (_prepare_partial(partial, other)).exists() == resumed, other
+        assert json.loads((partial / "config.json").read_text()) == other

@@ -138,7 +138,7 @@ def test_patch_windows_are_aligned():
     model = Division()
     # lr 1e-9: Adam would move w by about lr per step even at a zero loss
     cfg = SimpleNamespace(options=CompenNetOptions(iters=20, batch=4, loss="l1", patch=8, lr=1e-9), seed=0,
-                          method="division")
+                          method="division", checkpoint_every=50)
     result = fit_network(model, data, cfg, use_surface=True, progress=False)
     assert set(model.seen) == {(4, 3, 8, 8)}
     assert max(loss for _, loss, _ in result.loss_curve) < 1e-6  # exact inverse on every window

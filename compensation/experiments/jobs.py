@@ -35,7 +35,7 @@ from compensation.data import load_setup_data
 from compensation.experiments.closed_loop import CAPTURES_DIR, N_CAPTURES
 from compensation.experiments.targets import TargetPolicy
 from compensation.experiments.official import official_complete, official_tag, write_official_outputs
-from compensation.training.config import TrainConfig
+from compensation.training.config import NOT_IDENTITY, TrainConfig
 from compensation.experiments.runs import (load_run, package_version, scores_are_current,
                                           source_revision, train_run, uncompensated_scores)
 from sim.dataset import FrameSpec, write_setup
@@ -156,7 +156,7 @@ class FitJob:
 
 
 def reusable(run_dir: Path, train_cfg: TrainConfig, setup_dir: Path) -> dict | None:
-    """The metrics of a finished run made with exactly ``train_cfg`` (device aside) on the dataset
+    """The metrics of a finished run made with exactly ``train_cfg`` (``NOT_IDENTITY`` aside) on the dataset
     ``setup_dir`` by this procam version and scored with today's metrics
     (:func:`~compensation.experiments.runs.scores_are_current`), else None."""
     if not (run_dir / "metrics.json").exists():
@@ -169,7 +169,7 @@ def reusable(run_dir: Path, train_cfg: TrainConfig, setup_dir: Path) -> dict | N
     wanted = train_cfg.to_dict()
     if (config.get("dataset") != str(Path(setup_dir).resolve())
             or config.get("procam_version") != package_version()
-            or not all(done.get(k) == v for k, v in wanted.items() if k != "device")):
+            or not all(done.get(k) == v for k, v in wanted.items() if k not in NOT_IDENTITY)):
         return None
     metrics = read_json(run_dir / "metrics.json", "run metrics")
     return metrics if scores_are_current(metrics) else None

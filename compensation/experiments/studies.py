@@ -81,7 +81,7 @@ STUDY_KEYS = ("name", "question", "base", "methods", "seeds", "n_train", "n_test
 """Keys of a study file."""
 AXIS_KEYS = ("key", "values", "label", "unit")
 """Keys of an ``[[axis]]`` table."""
-TRAIN_AXIS_REFUSED = ("n_test", "seed", "device", "eval_batch")
+TRAIN_AXIS_REFUSED = ("n_test", "seed", "device", "eval_batch", "checkpoint_every")
 """Training options that cannot be an axis (seeds are their own list; the others change no score)."""
 MAX_RUNS = 10_000
 """Most runs a study expands to (points × setups × seeds × methods × training sizes): each trains a

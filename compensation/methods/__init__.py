@@ -62,7 +62,7 @@ def make_config(profile: str = "paper", method: str = "compennet", **values) -> 
     >>> make_config("quick", "tps", loss="ssim")
     Traceback (most recent call last):
     ...
-    sim.errors.ProcamError: method 'tps' does not use option 'loss' (its options: smoothing, scale_invariant, workers; common: n_train, n_test, seed, device, eval_batch)
+    sim.errors.ProcamError: method 'tps' does not use option 'loss' (its options: smoothing, scale_invariant, workers; common: n_train, n_test, seed, device, eval_batch, checkpoint_every)
     """
     if profile not in PROFILES:
         raise ProcamError(f"profile {profile!r}: choose one of {', '.join(PROFILES)}")

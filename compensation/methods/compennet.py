@@ -510,7 +510,7 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
         with faster_backward(model) if device.type == "cpu" else nullcontext():
             result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
                                 ("loss", "lr"), fit_label(data.name, cfg.method, cfg.seed), progress,
-                                stateful, checkpoint, sampler=opt.sampler)
+                                stateful, checkpoint, cfg.checkpoint_every, opt.sampler)
     finally:
         model.to(memory_format=torch.contiguous_format)
     return FitResult.of_loop(result)

@@ -108,6 +108,10 @@ square image size (pixels) a dataset is rendered at for that profile (training i
 dataset's size)."""
 
 
+CHECKPOINT_EVERY = 50
+"""The default of :attr:`TrainConfig.checkpoint_every`."""
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """How to train one method on one setup."""
@@ -132,6 +136,11 @@ class TrainConfig:
     """``auto`` (CUDA if available, else CPU), ``cpu`` or ``cuda[:N]``."""
     eval_batch: int = 64
     """Images per forward pass when predicting (>= 1; does not change results)."""
+    checkpoint_every: int = CHECKPOINT_EVERY
+    """Iterations between the training-state checkpoints of an iterative method (>= 1; a
+    CompenNet checkpoint is ~13 MB with Adam's moments): how much an interrupted run loses. A
+    resumed run gives the results of an uninterrupted one whatever the interval, so it is not
+    part of a run's identity (:data:`NOT_IDENTITY`)."""
 
     def __post_init__(self):
         if not isinstance(self.options, Options):
@@ -139,9 +148,10 @@ class TrainConfig:
                               f"dataclass, got {type(self.options).__name__}")
         if self.profile not in PROFILES:
             raise ProcamError(f"profile {self.profile!r}: choose one of {', '.join(PROFILES)}")
-        for key in ("n_train", "n_test", "eval_batch"):
+        for key in ("n_train", "n_test", "eval_batch", "checkpoint_every"):
             value = getattr(self, key)
-            if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
+            if (value is not None or key not in ("n_train", "n_test")) and \
+                    (not isinstance(value, int) or isinstance(value, bool) or value < 1):
                 raise ProcamError(f"{key} = {value!r}: expected a positive integer")
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed <= SEED_MAX:
             raise ProcamError(f"seed = {self.seed!r}: expected an integer from 0 to {SEED_MAX}")
@@ -154,6 +164,9 @@ class TrainConfig:
 
 COMMON = tuple(f.name for f in fields(TrainConfig) if f.name not in ("method", "options", "profile"))
 """Options every method takes."""
+NOT_IDENTITY = ("device", "checkpoint_every")
+"""Options that do not make a run another run: a finished or interrupted run made with other
+values of these is reused or resumed (the device's type aside, results are the same)."""
 
 
 @cache

@@ -26,14 +26,13 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from compensation.training.config import CHECKPOINT_EVERY
 from sim.errors import ProcamError
 from sim.heap import retained_heap
 from sim.io import atomic_write
 
 CHECK_EVERY = 10
 """Iterations between divergence checks (each check synchronises with the device)."""
-CHECKPOINT_EVERY = 50
-"""Iterations between training checkpoints (a CompenNet checkpoint is ~13 MB with Adam's moments)."""
 
 
 class BatchSampler:
@@ -256,7 +255,7 @@ def fit_label(setup: str, method: str, seed: int) -> str:
 def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int, iters: int,
                seed: int, device: torch.device, names: tuple[str, ...], desc: str,
                progress: bool = True, stateful: dict | None = None, checkpoint: Path | None = None,
-               every: int | None = None, sampler: str = "epoch") -> LoopResult:
+               every: int = CHECKPOINT_EVERY, sampler: str = "epoch") -> LoopResult:
     """Run ``iters`` steps on batches of distinct training indices, resumable.
 
     With a ``checkpoint`` path, the loop resumes from that file when it exists, saves it every
@@ -291,8 +290,8 @@ def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int,
         optimisers, schedulers), by name.
     checkpoint : Path, optional
         Training-state file to resume from and save to.
-    every : int, optional
-        Iterations between checkpoints (default :data:`CHECKPOINT_EVERY`).
+    every : int
+        Iterations between checkpoints (the run's ``checkpoint_every``).
     sampler : {"epoch", "random"}
         How batches are drawn (:class:`BatchSampler`).
 
@@ -303,7 +302,6 @@ def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int,
         process is asked to stop (the checkpoint is saved first).
     """
     stateful = stateful or {}
-    every = every or CHECKPOINT_EVERY
     batch = min(batch, n)
     batches = BatchSampler(n, batch, seed, sampler)
     values = torch.zeros(iters, len(names), dtype=torch.float64, device=device)
