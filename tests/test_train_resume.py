@@ -55,7 +55,7 @@ def test_resume_is_bit_identical(setup_dir, tmp_path, method, how):
     state = torch.load(partial_dir(run) / CHECKPOINT_FILE, weights_only=True)
     assert 8 <= state["iteration"] < iters
 
-    # another checkpoint interval is the same run: resumed, not started again
+    # under another checkpoint interval (that it resumes rather than restarts: the test below)
     resumed = _train(setup_dir, run, method, iters, every=5)
     _, err = resumed.communicate()
     assert resumed.returncode == 0, err

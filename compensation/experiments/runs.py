@@ -35,7 +35,7 @@ from compensation.experiments.closed_loop import CAPTURES_DIR
 from compensation.methods import METHODS, check_config, get_method
 from compensation.methods.base import Method, load_state, resolve_device
 from compensation.scores.metrics import evaluate, psnr_per_image
-from compensation.training.config import TrainConfig
+from compensation.training.config import NOT_IDENTITY, TrainConfig
 from sim.dataset import MAX_SIDE
 from sim.errors import DatasetError, ProcamError
 from sim.io import (atomic_write, check_output_folder, read_json, read_png, to_float, to_uint8, write_json,
@@ -216,9 +216,11 @@ def partial_dir(out_dir: Path) -> Path:
 
 def _identity(config: dict) -> dict:
     """What makes a partial run's ``config.json`` the same run: all of it but the device's name
-    (its thread count) and the checkpoint interval; the device's type (``train.device``) stays."""
+    (its thread count) and the training options of ``NOT_IDENTITY``, except the device's type
+    (``train.device``): a training state resumes only on the kind of device that saved it."""
     train = config.get("train")
-    train = {k: v for k, v in train.items() if k != "checkpoint_every"} if isinstance(train, dict) else train
+    if isinstance(train, dict):
+        train = {k: v for k, v in train.items() if k == "device" or k not in NOT_IDENTITY}
     return {**{k: v for k, v in config.items() if k != "device"}, "train": train}
 
 

@@ -150,8 +150,9 @@ class TrainConfig:
             raise ProcamError(f"profile {self.profile!r}: choose one of {', '.join(PROFILES)}")
         for key in ("n_train", "n_test", "eval_batch", "checkpoint_every"):
             value = getattr(self, key)
-            if (value is not None or key not in ("n_train", "n_test")) and \
-                    (not isinstance(value, int) or isinstance(value, bool) or value < 1):
+            if value is None and key in ("n_train", "n_test"):  # every pair
+                continue
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ProcamError(f"{key} = {value!r}: expected a positive integer")
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed <= SEED_MAX:
             raise ProcamError(f"seed = {self.seed!r}: expected an integer from 0 to {SEED_MAX}")
