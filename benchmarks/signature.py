@@ -8,7 +8,11 @@ a pixel's capture depends on more than its own input; the content-dependent proc
 (``benchmarks/effects.py``'s ``CONTENT``: the dynamic lamp, the DLP white segment, the camera's
 adaptive tone and picture style) is such a dependence. Each variant is one ``procam bench``
 (Table 1 at one training size) into ``OUT/<variant>/``, resumable: run the same command again to
-go on, or with more variants or methods to add them::
+go on, or with more variants or methods to add them. A variant is finished once its folder's
+``study.json``, ``results.csv`` and ``per_image.csv`` hold every setup and method at these settings
+(:func:`finished`); those three files are all the table needs, so a finished variant can be kept
+without its datasets and runs (``benchmarks/results/signature/runs/``) and copied into a new ``OUT``
+to measure the remaining variants in later sittings::
 
     .venv/bin/python benchmarks/signature.py --out OUT [--suite paper] [--setups A,B,...]
         [--variants default,dynamic_lamp,...,all_content] [--methods tps,tps-textured,compennet]
@@ -22,6 +26,7 @@ setups and images), the share of images where the first method is ahead and the 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import statistics
 from pathlib import Path
@@ -53,6 +58,25 @@ PAPER = {(a, b): PAPER_TABLE1[get_method(a).official_name, 125][0] - PAPER_TABLE
 def variant_setups(suite: list, variant: str) -> list:
     """The suite's setups with the variant's values (same names: each variant has its own folder)."""
     return [with_values(s, s.name, VARIANTS[variant]) for s in suite]
+
+
+def finished(folder: Path, setups: list[str], cfg: BenchConfig, n_train: int) -> bool:
+    """Whether ``folder`` holds a finished variant: a ``study.json`` of a Table-1 bench at ``cfg``'s
+    profile, canonical size, test count and test frames with ``n_train`` training pairs and these
+    ``setups``, whose ``results.csv`` has an ok row for every setup and method of ``cfg`` and whose
+    ``per_image.csv`` exists. Its datasets and runs need not be there."""
+    try:
+        study = json.loads((folder / "study.json").read_text(encoding="utf-8"))
+        rows = read_results(folder / "results.csv", [])
+    except (OSError, ValueError, ProcamError):
+        return False
+    same = (study.get("kind") == "bench" and study.get("profile") == cfg.profile
+            and study.get("size") == [cfg.canonical] * 2 and study.get("n_test") == cfg.tests
+            and study.get("n_train") == [n_train] and study.get("test_frames") == cfg.test_frames
+            and set(setups) <= set(study.get("setups", {})))
+    done = {(r["setup"], r["method"]) for r in rows if r["status"] == "ok" and r["table"] == "1"}
+    return same and (folder / "per_image.csv").is_file() and all(
+        (s, m) in done for s in setups for m in cfg.methods)
 
 
 def summarise(out: Path, variant: str) -> dict:
@@ -126,6 +150,9 @@ def main() -> None:
                       sizes=(args.n_train,), tables=("1",), size=args.size, n_test=args.n_test)
     try:
         for variant in variants:
+            if finished(args.out / variant, names, cfg, args.n_train):
+                print(f"signature: {variant}: finished in {args.out / variant}, not run again")
+                continue
             run_bench(variant_setups([suite[n] for n in names], variant), args.out / variant, cfg)
         rows = [summarise(args.out, v) for v in variants]
     except ProcamError as exc:

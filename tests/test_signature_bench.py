@@ -1,6 +1,6 @@
 """benchmarks/signature.py on a tiny two-setup suite: one bench per variant in its own folder, the
-variant's values in the rendered setups, and the table's means and paired differences recomputed
-from the benches' own result files."""
+variant's values in the rendered setups, the table's means and paired differences recomputed
+from the benches' own result files, and a finished variant kept from its result files alone."""
 from __future__ import annotations
 
 import csv
@@ -59,6 +59,21 @@ def test_signature_per_variant(tmp_path):
     md = (out / "signature.md").read_text()
     assert "tps-textured − tps (paper +1.68)" in md and "compennet − tps-textured (paper +1.74)" in md
     assert "--variants default,white_boost" in md
+
+    # a finished variant is its three result files: without its datasets and runs it is kept, not
+    # rendered again, and the table comes out the same
+    kept = tmp_path / "kept"
+    for variant in table:
+        (kept / variant).mkdir(parents=True)
+        for name in ("study.json", "results.csv", "per_image.csv"):
+            (kept / variant / name).write_bytes((out / variant / name).read_bytes())
+    proc = subprocess.run([*cmd[:3], str(kept), *cmd[4:]], capture_output=True, text=True,
+                          env=env, cwd=tmp_path, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    for variant in table:
+        assert f"{variant}: finished in {kept / variant}, not run again" in proc.stdout
+        assert not (kept / variant / "data").exists()
+    assert _rows(kept / "signature.csv") == _rows(out / "signature.csv")
 
 
 def test_unknown_variant_or_setup_is_refused_by_name(tmp_path):
