@@ -323,6 +323,7 @@ def test_camera_keys_round_trip_and_default_off():
             d.glare) == (0.0, "none", 0.0, 0.0, 0, "manual", 0.0)
 
 
+@pytest.mark.slow
 def test_dataset_records_the_exposure_used(tmp_path):
     import json
 

@@ -84,6 +84,7 @@ def test_raw_keeps_the_camera_captures_and_changes_nothing_else(tiny_render, raw
             assert with_raw[rel].read_bytes() == without[rel].read_bytes(), rel
 
 
+@pytest.mark.slow
 def test_raw_is_not_what_makes_a_dataset_different(tiny_render, raw_render, tmp_path):
     """A setup finished with its raw captures is finished without --raw (nothing rendered, nothing
     written); one finished without them renders its captures again for --raw, the warped ones to
@@ -165,6 +166,7 @@ def test_sizes_are_recorded_as_width_and_height_and_older_records_read(tiny_rend
     assert json.loads(marker.read_text())["source"]["width"] == 32  # upgraded in place
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes_other_seed_other_noise(tiny_render, tmp_path):
     for file, seed, out in (("a.toml", 0, "a"), ("b.toml", 1, "b")):
         setup = tiny_setup_file(tmp_path, file, render={"seed": seed})
@@ -175,6 +177,7 @@ def test_same_seed_same_bytes_other_seed_other_noise(tiny_render, tmp_path):
     assert 0 < np.abs(a.astype(int) - b.astype(int)).mean() < 10
 
 
+@pytest.mark.slow
 def test_output_does_not_depend_on_the_worker_threads(tiny_render, tmp_path, monkeypatch):
     """The camera model, warp and PNG writes run on worker threads; one worker gives the same
     bytes as the default pool, capture for capture."""
@@ -199,6 +202,7 @@ def test_bad_setup_writes_nothing(tmp_path, capsys):
     assert not (tmp_path / "data").exists()
 
 
+@pytest.mark.slow
 def test_console_script_help():
     exe = Path(sys.executable).with_name("procam")
     out = subprocess.run([str(exe), "render", "--help"], capture_output=True, text=True,
@@ -206,6 +210,7 @@ def test_console_script_help():
     assert "--n-train" in out and "--size" in out
 
 
+@pytest.mark.slow
 def test_photo_test_frames_change_the_test_split_only(tiny_render, tmp_path, capsys):
     """--test-frames photo: the same training frames, natural test frames, recorded in frames.json;
     a root of mixed test frames refuses them (its frames are made otherwise)."""

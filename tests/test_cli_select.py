@@ -43,6 +43,7 @@ def test_list_prints_the_names_and_renders_nothing(suite, tmp_path, capsys):
     assert capsys.readouterr().out.splitlines() == [s.name for s in load_setups("suite")]
 
 
+@pytest.mark.slow
 def test_only_renders_the_named_setups(suite, tmp_path, capsys):
     data = tmp_path / "data"
     assert main(["render", str(suite), "--only", "beta", "--out", str(data), "--size", "16",

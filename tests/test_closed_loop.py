@@ -208,6 +208,7 @@ def test_reachable_mask_flags_what_the_projector_cannot_do(textured):
     assert np.isclose(float(reachable_mask(data, data.ref.captures[124:125]).float().mean()), 1.0)
 
 
+@pytest.mark.slow
 def test_closed_loop_refuses_a_simulator_that_differs_from_the_dataset(tmp_path):
     """The closed loop rebuilds the dataset's simulator from its records (the exposure is taken
     from them): a homography that comes out otherwise (another machine's variant, an edited record) is refused

@@ -175,6 +175,7 @@ def test_unreadable_meta(fresh):
         load_setup_data(fresh)
 
 
+@pytest.mark.slow
 def test_a_root_without_ref_frames_loads_and_tps_says_what_it_needs(tmp_path):
     """ROOT/ref (the plain colours' projector frames) is optional, as for the official code:
     CompenNet trains without it, TPS and Nayar refuse naming what they need."""

@@ -22,6 +22,7 @@ STUDIES = scene_path("default").parent / "studies"
 
 @pytest.mark.parametrize("aperture", [0.01, 0.04])
 @pytest.mark.parametrize("size", [32, 64])
+@pytest.mark.slow
 def test_projector_blur_is_the_thin_lens_disk_in_canonical_pixels(aperture, size):
     """Head-on plane at distance d, focus f: a disk of A·|d − f|/f metres, over the canonical pixel's
     width on the surface (the panel pixel's width d·2·tan(fov/2)/W times panel pixels per canonical
@@ -39,6 +40,7 @@ def test_projector_blur_is_the_thin_lens_disk_in_canonical_pixels(aperture, size
     assert projector_blur(in_focus, (size, size)) < 0.05 * expected
 
 
+@pytest.mark.slow
 def test_a_study_of_the_aperture_records_the_blur_and_its_chart_shows_it():
     study = load_study(STUDIES / "projector-defocus.toml")
     record = study_record(study, expand(study))

@@ -73,6 +73,7 @@ def test_train_out_at_an_existing_file(setup_dir, tmp_path, capsys):
     assert target.read_text() == "not a run"
 
 
+@pytest.mark.slow
 def test_train_overwrite_never_deletes_files_a_run_did_not_write(setup_dir, tmp_path, capsys):
     """--overwrite replaces a run, not a folder of the user's that happens to hold a metrics.json;
     a real run (with its closed-loop captures) is still replaced."""
@@ -90,6 +91,7 @@ def test_train_overwrite_never_deletes_files_a_run_did_not_write(setup_dir, tmp_
     assert (run / "tps.npz").is_file() and not (run / "nayar.npz").exists()
 
 
+@pytest.mark.slow
 def test_train_out_at_a_symbolic_link_is_refused_and_leaves_nothing_behind(setup_dir, tmp_path, capsys):
     """--out naming a symbolic link to a run (or a dangling one) is refused before training; the run
     it points to stays as it was, nothing is left beside the link, and the folder itself is taken."""
@@ -243,6 +245,7 @@ def test_killed_bench_resumes_to_the_same_table(tmp_path):
     shutil.rmtree(tmp_path / "data")
 
 
+@pytest.mark.slow
 def test_file_system_errors_are_reported_without_traceback(tmp_path, capsys):
     """bench-sim into a folder under a file: the OSError is named, exit 2."""
     blocker = tmp_path / "file"

@@ -280,6 +280,7 @@ def test_captures_independent_of_the_projector_are_refused_with_the_contrast(tmp
 
 @pytest.mark.parametrize("projector", [{"aperture": 1e30}, {"aperture": 0.01, "focus_distance": 1e-300}],
                          ids=["aperture=1e30", "focus_distance=1e-300"])
+@pytest.mark.slow
 def test_a_defocus_disk_wider_than_the_panel_is_refused_before_its_kernel(tmp_path, capsys, projector):
     """The disk kernel's size grows as the square of its diameter: a disk of 1e16 pixels is
     refused, naming the keys and the limit, before its kernel is made; the corrected setup renders
@@ -418,6 +419,7 @@ def test_damaged_files_are_written_again(reference, tmp_path):
     _assert_same_dataset(root, reference)
 
 
+@pytest.mark.slow
 def test_damaged_raw_captures_are_written_again_with_raw(reference, tmp_path):
     """With --raw a damaged raw capture is a capture to render again; without, a setup does not
     need it."""
@@ -573,6 +575,7 @@ def test_overwrite_repairs_a_damaged_capture_of_a_finished_setup(tmp_path, capsy
 
 @pytest.mark.parametrize("projector", [{"brightness": 1e-30},
                                        {"mixing": [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]}])
+@pytest.mark.slow
 def test_captures_that_do_not_respond_to_the_projector_are_refused(tmp_path, capsys, projector):
     """A projector whose light does not reach the camera gives captures independent of the frame:
     refused with the measured contrast, and the corrected setup renders into the same folder."""
@@ -658,6 +661,7 @@ def test_suite_names_and_selections_are_checked(tmp_path, capsys, suite, only, f
     _refused(capsys, ["render", str(path), "--list", *(["--only", only] if only else [])], fragment)
 
 
+@pytest.mark.slow
 def test_the_fix_a_failed_render_suggests_is_accepted(tmp_path, capsys):
     """A render refused before its first capture (the checkerboard not found at a canonical size too
     small for it) leaves neither its setup record nor frames that block the fixes it suggests: the
@@ -678,6 +682,7 @@ def test_the_fix_a_failed_render_suggests_is_accepted(tmp_path, capsys):
              "this root's projector frames were made with")  # now in use: refused
 
 
+@pytest.mark.slow
 def test_a_root_stays_readable_by_the_official_loader(tmp_path, capsys):
     """Every setup of a root keeps as many captures as the root has frames: growing the frames for
     one setup while another is finished with fewer, or capturing fewer than the root's frames, is

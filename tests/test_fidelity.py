@@ -50,6 +50,7 @@ def test_probe_frames(kind):
         assert frame[0, :2 * w, 0].tolist() == [255] * w + [0] * w
 
 
+@pytest.mark.slow
 def test_auto_picks_a_direct_light_level_for_a_plane():
     setup = tiny_setup(camera=NOISY, surface={"texture": "noise"}, render={"fidelity": "auto"})
     choice = resolve(setup)

@@ -50,6 +50,7 @@ def test_grid_values_are_the_means_over_seeds():
     assert np.isnan(heatmap_grid(summary, AXES, "nayar", 8, "cl_psnr")["mean"]).all()
 
 
+@pytest.mark.slow
 def test_two_axes_write_one_heatmap_per_method_and_score(tmp_path):
     study = {"name": "noise-bayer", "axes": AXES}
     summary = summarize(rows({"tps"}), [a["key"] for a in AXES])
@@ -61,6 +62,7 @@ def test_two_axes_write_one_heatmap_per_method_and_score(tmp_path):
         assert iio.imread(path).ndim == 3 and path.with_name(name[:-3] + "svg").is_file()
 
 
+@pytest.mark.slow
 def test_several_training_sizes_keep_theirs_in_the_names(tmp_path):
     study = {"name": "noise-bayer", "axes": AXES}
     sized = [{**r, "n_train": n} for r in rows(set()) if r["method"] == "tps" for n in (8, 16)]

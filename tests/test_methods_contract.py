@@ -95,6 +95,7 @@ def test_method_contract(name, dim, tmp_path):
 
 
 @pytest.mark.parametrize("name", sorted(METHODS))
+@pytest.mark.slow
 def test_run_config_records_every_option(name, setup_dir, tmp_path):
     """``config.json`` holds the resolved options of the method, all of them, and they load back."""
     cls = get_method(name)

@@ -74,6 +74,7 @@ def test_the_jacobians_of_a_known_model():
     torch.testing.assert_close(own, (KERNEL.sum() * MIX).expand_as(own), atol=1e-5, rtol=1e-4)
 
 
+@pytest.mark.slow
 def test_the_step_across_pixels_is_scipys_bounded_least_squares():
     model = _blur_model(KERNEL, MIX)
     g = torch.Generator().manual_seed(1)
@@ -102,6 +103,7 @@ def _dataset(tmp_path, name: str, n_test: int = 4, **sections):
     return setup_dir, load_setup_data(setup_dir), simulator_for(setup_dir)
 
 
+@pytest.mark.slow
 def test_on_a_white_surface_without_room_light_the_optimum_is_exact(tmp_path):
     """Albedo 1, no ambient light, the camera on the projector's axis: every target in reach is
     shown to within the 8-bit steps of projector and camera."""

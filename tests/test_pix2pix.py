@@ -183,6 +183,7 @@ def test_other_checkpoints_are_refused(tmp_path):
         Pix2PixMethod.load(tmp_path, device="cpu")
 
 
+@pytest.mark.slow
 def test_train_run_writes_a_run_directory(tmp_path):
     setup_dir = make_dataset(tmp_path / "data")
     out = tmp_path / "run"
@@ -223,6 +224,7 @@ def test_options_pix2pix_does_not_use_are_refused(option, value):
         make_config("quick", "pix2pix", **{option: value})
 
 
+@pytest.mark.slow
 def test_lr_and_l1_weight_are_used(inverse_setup):
     """The learning rate is recorded in the loss curve and changes the fit; λ = 0 (GAN loss only)
     trains other weights than the published λ = 100."""

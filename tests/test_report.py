@@ -290,6 +290,7 @@ def _chromium() -> str | None:
     return shutil.which("chromium") or shutil.which("chromium-browser")
 
 
+@pytest.mark.slow
 def test_report_renders_in_chromium(study, tmp_path):
     """The page as a browser shows it: not blank, and the inline images are drawn (the nayar
     captures' colour appears in the screenshot)."""
@@ -308,6 +309,7 @@ def test_report_renders_in_chromium(study, tmp_path):
     assert near.sum() > 2000  # the figure grid's nayar cells, scaled by the browser
 
 
+@pytest.mark.slow
 def test_real_bench_folder(tmp_path, capsys):
     """A folder written by `procam bench` (no study.json / results.csv yet) is reported from its
     Table 1 rows: the table with the paper's column, the speed chart, the grid of the dataset."""
@@ -364,6 +366,7 @@ def test_training_size_factor():
     assert found["tps"]["n_train"] == ""
 
 
+@pytest.mark.slow
 def test_bench_results_with_tables(tmp_path):
     """A bench's results.csv names each row's table and variant: the summary and break points take
     Table 1 (methods x sizes), Tables 2 and 3 (variants of CompenNet) stay out of its lines."""
@@ -430,6 +433,7 @@ def test_a_folder_where_every_run_failed_still_gets_its_report(tmp_path):
     assert not list((tmp_path / "charts").glob("study*.png"))
 
 
+@pytest.mark.slow
 def test_each_value_of_a_second_axis_keeps_its_own_chart_files(tmp_path):
     """Chart names keep the second axis's key and value: with a dotted key, two values give four
     chart files (study and gain), none overwriting another (``with_suffix`` had cut

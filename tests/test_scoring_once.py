@@ -45,6 +45,7 @@ def test_uncompensated_scores_are_computed_once_per_test_set(counted):
     assert len(counted) == 2
 
 
+@pytest.mark.slow
 def test_runs_and_baselines_share_one_uncompensated_scoring(tmp_path, counted, monkeypatch):
     setup = make_dataset(tmp_path / "data", n_train=8, n_test=3)
     predicted = []

@@ -76,6 +76,7 @@ def test_signature_per_variant(tmp_path):
     assert _rows(kept / "signature.csv") == _rows(out / "signature.csv")
 
 
+@pytest.mark.slow
 def test_unknown_variant_or_setup_is_refused_by_name(tmp_path):
     script = str(ROOT / "benchmarks" / "signature.py")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
@@ -88,6 +89,7 @@ def test_unknown_variant_or_setup_is_refused_by_name(tmp_path):
     assert not any(tmp_path.iterdir())  # nothing written
 
 
+@pytest.mark.slow
 def test_a_variant_folder_of_another_bench_is_refused_without_traceback(tmp_path):
     (tmp_path / "default").mkdir()
     (tmp_path / "default" / "study.json").write_text('{"name": "other", "kind": "bench"}')

@@ -128,6 +128,7 @@ print("ok")
 """
 
 
+@pytest.mark.slow
 def test_a_new_camera_stage_is_one_module_and_one_line_in_the_chain(tmp_path):
     """A copy of ``sim`` with a toy stage module (a gain with its own key) and one entry in the
     camera's chain: the key is validated, dumped and applied, with no other edit."""

@@ -318,6 +318,7 @@ def test_render_seeds_give_each_seed_its_dataset(tmp_path):
     assert len(plan.runs) == 2 * 2 * 2  # points x methods x seeds
 
 
+@pytest.mark.slow
 def test_provenance_names_the_source_revision(tmp_path):
     """In a git checkout the source is its commit; a copy of the sources outside any checkout is
     identified by their digest, which changes with any source file."""

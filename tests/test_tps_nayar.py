@@ -317,6 +317,7 @@ def fit_config(method: str, **options) -> TrainConfig:
 
 
 @pytest.mark.parametrize("name", ["tps", "tps-textured", "nayar"])
+@pytest.mark.slow
 def test_method_trains_into_a_run_and_beats_uncompensated(name, setup_dir, data, tmp_path):
     """The synthetic setup (capture = 0.15 + 0.7 · frame · albedo) is per-pixel affine, so every
     baseline compensates it up to 8-bit quantisation."""

@@ -85,6 +85,7 @@ def naive_training(data: SetupData, opt: CompenNetOptions, seed: int) -> tuple[l
     return losses, model.state_dict()
 
 
+@pytest.mark.slow
 def test_training_equals_the_naive_loop(data):
     opt = CompenNetOptions(iters=8, batch=8, lr_step=5)
     cfg = TrainConfig(method="compennet", options=opt, seed=3, device="cpu")

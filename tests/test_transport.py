@@ -49,6 +49,7 @@ def test_agrees_with_converged_direct_on_default_setup(default_op, kind):
     assert _psnr(tr.radiance(frame), want) >= 40.0
 
 
+@pytest.mark.slow
 def test_defocused_camera_and_projector_agree_with_converged_direct():
     """The thin-lens camera widens each pixel's footprint; the operator still reproduces it."""
     setup = _shipped("defocus")
