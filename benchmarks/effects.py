@@ -27,7 +27,9 @@ import math
 from pathlib import Path
 
 from compensation.experiments.bench import BenchConfig, run_bench
-from sim.io import write_text
+from sim.errors import ProcamError
+from sim.io import read_json, write_text
+from sim.layout import META_FILE
 from sim.setup import load_setup, scene_path
 
 METHODS = ("tps", "tps-textured", "nayar", "compennet")
@@ -115,12 +117,26 @@ def _rows(path: Path) -> list[dict]:
         return [r for r in csv.DictReader(f) if r.get("table", "1") == "1"]
 
 
+def misregistration(out: Path, setup: str) -> dict:
+    """The residual misregistration of a row's dataset ``OUT/data/<setup>`` (its ``meta.json``), in
+    canonical pixels: ``misreg_mean`` and ``misreg_p95`` of the homography its captures were
+    registered with, 0 where they were registered by the exact map; none without a dataset."""
+    try:
+        reg = read_json(out / "data" / setup / META_FILE)["registration"]
+    except (OSError, ValueError, KeyError, TypeError, ProcamError):
+        return {}
+    if reg.get("method") == "exact":
+        return {"misreg_mean": 0.0, "misreg_p95": 0.0}
+    px = reg.get("homography", {}).get("canonical_px", {})
+    return {f"misreg_{k}": px[k] for k in ("mean", "p95") if k in px}
+
+
 def merge_runs(out: Path) -> list[dict]:
     """The runs of every call so far: ``OUT/effects_runs.csv`` (the calls before) updated with the
     bench's ``OUT/results.csv`` (this call's runs, which replace earlier ones of the same setup and
-    method), written back."""
+    method, each with its dataset's :func:`misregistration`), written back."""
     store = out / "effects_runs.csv"
-    new = _rows(out / "results.csv")
+    new = [{**r, **misregistration(out, r["setup"])} for r in _rows(out / "results.csv")]
     done = {(r["setup"], r["method"]) for r in new}
     rows = new + [r for r in _rows(store) if (r["setup"], r["method"]) not in done]
     cols = list(dict.fromkeys(k for r in rows for k in r))
@@ -148,6 +164,9 @@ def table(rows: list[dict]) -> list[dict]:
             continue
         for key, col in (("unc_psnr", "uncompensated"), ("cl_unc_psnr", "uncompensated CL")):
             line[col] = _number(first[key]) - (0 if setup == "effects_base" else _number(base_first[key]))
+        for key in ("misreg_mean", "misreg_p95"):  # the same dataset for every method of a row
+            known = [v for (s, _), r in score.items() if s == setup and not math.isnan(v := _number(r.get(key)))]
+            line[key] = known[0] if known else math.nan
         for m in METHODS:
             r, b = score.get((setup, m)), score.get(("effects_base", m))
             for key, suffix in (("psnr", ""), ("cl_psnr", " CL")):
@@ -161,20 +180,22 @@ def table(rows: list[dict]) -> list[dict]:
 
 def write(out: Path, lines: list[dict], how: str) -> None:
     """``effects.csv`` and ``effects.md`` (the base row in absolute dB, the others as changes)."""
-    cols = ["effect", "uncompensated", "uncompensated CL", *(f"{m}{s}" for m in METHODS for s in ("", " CL"))]
+    cols = ["effect", "misreg_mean", "misreg_p95", "uncompensated", "uncompensated CL",
+            *(f"{m}{s}" for m in METHODS for s in ("", " CL"))]
     text = [",".join(cols)] + [",".join(l["effect"] if c == "effect" else f"{l.get(c, math.nan):.2f}"
                                         for c in cols) for l in lines]
     write_text(out / "effects.csv", "\n".join(text) + "\n")
     md = ["# Per-effect table: PSNR change (dB) against the base, surrogate / closed loop (CL)", "",
           how, "",
-          "| effect | uncompensated | " + " | ".join(METHODS) + " |",
-          "|---|---|" + "---|" * len(METHODS)]
+          "| effect | misregistration (canonical px: mean / p95) | uncompensated | " + " | ".join(METHODS) + " |",
+          "|---|---|---|" + "---|" * len(METHODS)]
     for l in lines:
         sign = "" if l["setup"] == "effects_base" else "+"
 
         def pair(a, b):
-            return f"{l.get(a, math.nan):{sign}.2f} / {l.get(b, math.nan):{sign}.2f}"
-        md.append(f"| {l['effect']} | {pair('uncompensated', 'uncompensated CL')} | "
+            return " / ".join("–" if math.isnan(v := l.get(k, math.nan)) else f"{v:{sign}.2f}" for k in (a, b))
+        misreg = f"{l['misreg_mean']:.2f} / {l['misreg_p95']:.2f}" if not math.isnan(l["misreg_mean"]) else "–"
+        md.append(f"| {l['effect']} | {misreg} | {pair('uncompensated', 'uncompensated CL')} | "
                   + " | ".join(pair(m, m + ' CL') for m in METHODS) + " |")
     write_text(out / "effects.md", "\n".join(md) + "\n")
 

@@ -1,0 +1,75 @@
+"""benchmarks/effects.py's table from result rows: changes against the base row, runs of earlier calls
+kept, and the residual misregistration of each row's dataset."""
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "effects.py"
+
+
+@pytest.fixture(scope="module")
+def effects():
+    spec = importlib.util.spec_from_file_location("effects_script", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _write_results(path: Path, rows: list[dict]) -> None:
+    cols = list(dict.fromkeys(k for r in rows for k in r))
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, cols)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def _row(setup: str, method: str, psnr: float, cl: str = "") -> dict:
+    return {"setup": setup, "method": method, "status": "ok", "psnr": psnr, "cl_psnr": cl,
+            "unc_psnr": 9.0 if setup == "effects_base" else 8.5, "cl_unc_psnr": "", "table": "1"}
+
+
+def _meta(out: Path, setup: str, registration: dict) -> None:
+    (out / "data" / setup).mkdir(parents=True)
+    (out / "data" / setup / "meta.json").write_text(json.dumps({"registration": registration}))
+
+
+def test_rows_are_changes_against_the_base_with_their_misregistration(effects, tmp_path):
+    # an earlier call's runs (relief row, TPS only), kept in effects_runs.csv
+    _write_results(tmp_path / "effects_runs.csv", [_row("effects_01", "tps", 25.0)])
+    # this call: the base and the relief row again with CompenNet, their datasets on disk
+    _write_results(tmp_path / "results.csv", [_row("effects_base", "tps", 26.5, "26.0"),
+                                              _row("effects_base", "compennet", 24.0, "25.5"),
+                                              _row("effects_01", "compennet", 23.2, "24.9")])
+    _meta(tmp_path, "effects_base", {"method": "exact", "homography": {"status": "not estimated"}})
+    _meta(tmp_path, "effects_01", {"method": "homography", "homography": {
+        "status": "estimated", "canonical_px": {"mean": 0.46, "p95": 1.13, "max": 2.9}}})
+    rows = effects.merge_runs(tmp_path)
+    assert {(r["setup"], r["method"]) for r in rows} == {
+        ("effects_base", "tps"), ("effects_base", "compennet"), ("effects_01", "compennet"), ("effects_01", "tps")}
+    lines = {line["setup"]: line for line in effects.table(rows)}
+    base, relief = lines["effects_base"], lines["effects_01"]
+    assert (base["misreg_mean"], base["misreg_p95"]) == (0.0, 0.0)  # registered by the exact map
+    assert (relief["misreg_mean"], relief["misreg_p95"]) == (0.46, 1.13)
+    assert base["tps"] == 26.5 and base["compennet CL"] == 25.5  # absolute in the base row
+    assert relief["tps"] == pytest.approx(-1.5) and relief["compennet"] == pytest.approx(-0.8)
+    assert relief["compennet CL"] == pytest.approx(-0.6) and math.isnan(relief["tps CL"])
+    assert relief["uncompensated"] == pytest.approx(-0.5)
+    # the kept store now holds the merged runs with the misregistration of this call's datasets
+    stored = {(r["setup"], r["method"]): r for r in csv.DictReader(open(tmp_path / "effects_runs.csv"))}
+    assert stored["effects_01", "compennet"]["misreg_p95"] == "1.13" and stored["effects_01", "tps"]["misreg_p95"] == ""
+    effects.write(tmp_path, list(lines.values()), "how")
+    md = (tmp_path / "effects.md").read_text()
+    assert "| surface relief, registered by one homography | 0.46 / 1.13 | -0.50 / – | -1.50 / – |" in md
+    assert md.count("| base (all effects off) | 0.00 / 0.00 | 9.00 / – | 26.50 / 26.00 |") == 1
+
+
+def test_a_row_without_its_dataset_has_no_misregistration(effects, tmp_path):
+    assert effects.misregistration(tmp_path, "effects_05") == {}
+    _meta(tmp_path, "effects_05", {"method": "homography", "homography": {"status": "failed"}})
+    assert effects.misregistration(tmp_path, "effects_05") == {}
