@@ -16,7 +16,7 @@ to measure the remaining variants in later sittings::
 
     .venv/bin/python benchmarks/signature.py --out OUT [--suite paper] [--setups A,B,...]
         [--variants default,dynamic_lamp,...,all_content] [--methods tps,tps-textured,compennet]
-        [--profile faithful] [--size N --n-train N --n-test N]
+        [--profile faithful] [--size N --n-train N --n-test N] [--test-frames mixed]
 
 Writes ``OUT/signature.md`` and ``OUT/signature.csv``: per variant the mean PSNR of each method
 over the setups and the paired differences with their 95 % interval (hierarchical bootstrap over
@@ -38,6 +38,7 @@ from compensation.reports.summary import attach_per_image, read_results
 from compensation.reports.tables import PAPER_TABLE1
 from effects import CONTENT, with_values
 from sim.errors import ProcamError
+from sim.images import FRAME_KINDS
 from sim.io import write_text
 from sim.setup import load_setups
 
@@ -138,6 +139,9 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=None, help="canonical pixels (default: the profile's)")
     ap.add_argument("--n-train", type=int, default=125)
     ap.add_argument("--n-test", type=int, default=None, help="test pairs (default: the profile's)")
+    ap.add_argument("--test-frames", choices=FRAME_KINDS, default="mixed",
+                    help="the test frames (default mixed, whatever the suite asks for: the runs of "
+                         "benchmarks/results/signature/ are on mixed frames)")
     args = ap.parse_args()
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     if unknown := [v for v in variants if v not in VARIANTS]:
@@ -147,7 +151,8 @@ def main() -> None:
     if missing := [n for n in names if n not in suite]:
         ap.error(f"--setups: {', '.join(missing)} not in the suite {args.suite}")
     cfg = BenchConfig(profile=args.profile, methods=tuple(m.strip() for m in args.methods.split(",")),
-                      sizes=(args.n_train,), tables=("1",), size=args.size, n_test=args.n_test)
+                      sizes=(args.n_train,), tables=("1",), size=args.size, n_test=args.n_test,
+                      test_frames=args.test_frames)
     try:
         for variant in variants:
             if finished(args.out / variant, names, cfg, args.n_train):
@@ -160,8 +165,8 @@ def main() -> None:
     how = (f"`python benchmarks/signature.py --out OUT --suite {args.suite} --setups {','.join(names)} "
            f"--variants {','.join(variants)} --methods {','.join(cfg.methods)} --profile {args.profile}"
            + (f" --size {args.size}" if args.size else "") + f" --n-train {args.n_train}"
-           + (f" --n-test {args.n_test}" if args.n_test else "") + f"`: {cfg.canonical}² canonical, "
-           f"{args.n_train} training / {cfg.tests} test pairs per setup.")
+           + (f" --n-test {args.n_test}" if args.n_test else "") + f" --test-frames {args.test_frames}`: "
+           f"{cfg.canonical}² canonical, {args.n_train} training / {cfg.tests} {args.test_frames} test pairs per setup.")
     write(args.out, rows, how)
     print((args.out / "signature.md").read_text())
 

@@ -47,7 +47,9 @@ def cmd_render(args: argparse.Namespace) -> None:
     if args.list:
         print("\n".join(s.name for s in setups))
         return
-    spec = FrameSpec(args.n_train, args.n_test, args.size, args.frame_seed, args.images, args.test_frames)
+    # your own frames replace the generated ones, whatever kind the suite asks for
+    kind = (args.test_frames or "mixed") if args.images else _test_frames(args, args.setup)
+    spec = FrameSpec(args.n_train, args.n_test, args.size, args.frame_seed, args.images, kind)
     for setup in setups:  # every setup of a suite is checked before the first is rendered
         check_render(setup, spec, args.fidelity, args.spp)
     check_counts(Path(args.out), spec, [s.name for s in setups])
@@ -63,10 +65,18 @@ def cmd_render(args: argparse.Namespace) -> None:
 def _test_frames_option(p) -> None:
     from sim.images import FRAME_KINDS
 
-    p.add_argument("--test-frames", choices=FRAME_KINDS, default="mixed",
+    p.add_argument("--test-frames", choices=FRAME_KINDS, default=None,
                    help="the generated test frames: mixed (photographs, patterns and blends, as the "
-                        "training frames; the default) or photo (natural images only, as in the "
-                        "paper's datasets)")
+                        "training frames) or photo (natural images only, as in the paper's "
+                        "datasets); default: what the suite file says (its test_frames), else mixed")
+
+
+def _test_frames(args: argparse.Namespace, spec: str | None) -> str:
+    """``--test-frames`` as given, else the suite's ``test_frames`` (:func:`sim.setup.suite_test_frames`),
+    else ``mixed``."""
+    from sim.setup import suite_test_frames
+
+    return args.test_frames or (suite_test_frames(spec) if spec else None) or "mixed"
 
 
 RAW_HELP = ("also keep every capture at camera resolution (cam/raw: 960x640 PNGs on the shipped "
@@ -423,7 +433,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
     cfg = BenchConfig(profile=args.profile, methods=_names(args.methods, "--methods"),
                       sizes=args.sizes, tables=_names(args.tables, "--tables"), size=args.size,
                       n_test=n_test, overrides=options, closed_loop=args.closed_loop, target=_target(args),
-                      test_frames=args.test_frames, raw=args.raw)
+                      test_frames=_test_frames(args, args.suite), raw=args.raw)
     if args.only is not None and not args.suite:
         raise ProcamError("--only selects setups of a suite: give the suite (the setups found under "
                           "--data are all taken)")

@@ -229,6 +229,20 @@ def test_photo_test_frames_change_the_test_split_only(tiny_render, tmp_path, cap
     assert "frames.json" in capsys.readouterr().err
 
 
+@pytest.mark.slow
+def test_a_suites_test_frames_are_the_default_of_the_flag(tiny_render, tmp_path):
+    """A suite's ``test_frames`` is what ``--test-frames`` takes when not given; the flag overrides it."""
+    (tmp_path / "tiny.toml").write_bytes((tiny_render / "tiny.toml").read_bytes())
+    suite = tmp_path / "suite.toml"
+    suite.write_text('base = "tiny.toml"\ntest_frames = "photo"\n\n[[setup]]\nname = "tiny"\n')
+    for out, flag, kind in (("suite", [], "photo"), ("flag", ["--test-frames", "mixed"], None)):
+        assert main(["render", str(suite), "--out", str(tmp_path / out), *TINY_RENDER, *flag]) == 0
+        assert json.loads((tmp_path / out / "frames.json").read_text())["source"].get("test_frames") == kind
+    mixed = read_png(tiny_render / "data" / "test" / "img_0001.png")
+    assert np.array_equal(read_png(tmp_path / "flag" / "test" / "img_0001.png"), mixed)
+    assert not np.array_equal(read_png(tmp_path / "suite" / "test" / "img_0001.png"), mixed)
+
+
 def test_every_command_prints_its_help():
     """Each subcommand's help is formatted without error: help built from docstrings may hold a
     ``%``, which argparse would read as a format directive."""

@@ -19,7 +19,7 @@ from sim.options import Table, parse, spec_of
 from sim.setup.schema import SECTIONS
 from sim.setup import (AmbientConfig, CameraConfig, ProjectorConfig, RenderConfig, Setup,
                        SurfaceConfig, dump_setup, load_setup, load_setups, load_suite, parse_setup,
-                       scene_path, temperature_rgb)
+                       scene_path, suite_test_frames, temperature_rgb)
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 SHIPPED = ("default", "ideal", "white", "corner", "defocus")
@@ -450,7 +450,9 @@ def test_suite_resolves_texture_paths_against_the_file_that_gives_them(tmp_path)
      ["setup[0].ambient.radiance", "setup[0].ambient.temperature", "exactly one"]),
     ('[[setup]]\nname = "a"\nsurface = { geometry = "corner" }\nrender = { fidelity = "direct" }\n',
      ['setup[0].render.fidelity = "direct"', "inter-reflection"]),
-    ("setups = 3\n", ["setups", "unknown key", "base, setup"]),
+    ("setups = 3\n", ["setups", "unknown key", "base, setup, test_frames"]),
+    ('test_frames = "natural"\n[[setup]]\nname = "a"\n',
+     ['test_frames = "natural"', "expected one of 'mixed', 'photo'"]),
     ("", ["setup", "expected one or more [[setup]] tables"]),
 ])
 def test_bad_suite_names_suite_file_and_entry(tmp_path, text, parts):
@@ -477,6 +479,16 @@ def test_load_setups_takes_a_setup_file_a_suite_file_or_a_shipped_name(tmp_path)
     (tmp_path / "broken.toml").write_text("name = \n")
     with pytest.raises(SetupError, match="broken.toml: not valid TOML"):
         load_setups(str(tmp_path / "broken.toml"))
+
+
+def test_a_suite_says_which_test_frames_its_datasets_take(tmp_path):
+    assert suite_test_frames("paper") == "photo"
+    assert suite_test_frames("suite") is None and suite_test_frames("default") is None  # a setup file
+    suite = _suite(tmp_path, 'test_frames = "mixed"\n[[setup]]\nname = "a"\n')
+    assert suite_test_frames(str(suite)) == "mixed" and [s.name for s in load_suite(suite)] == ["a"]
+    suite.write_text('test_frames = 3\n[[setup]]\nname = "a"\n')
+    with pytest.raises(SetupError, match=f"^{re.escape(str(suite))}: test_frames = 3: expected one of"):
+        suite_test_frames(str(suite))
 
 
 def test_suite_base_errors_name_the_base_file(tmp_path):

@@ -12,18 +12,20 @@ A setup file (TOML, ``scenes/*.toml``) has a ``name`` and the sections ``surface
 - :mod:`~sim.setup.toml`: :func:`load_setup` (a file) and :func:`dump_setup` (the fully
   resolved TOML, which reads back to an equal :class:`Setup`);
 - :mod:`~sim.setup.suites`: :func:`load_suite`, the shipped scenes (:func:`scene_path`),
-  :func:`load_setups`, what a command line names, :func:`select_setups` (``--only``) and
-  :func:`merge_setup`, partial overrides deep-merged onto a setup mapping.
+  :func:`load_setups`, what a command line names, :func:`select_setups` (``--only``),
+  :func:`suite_test_frames`, the test frames a suite asks for, and :func:`merge_setup`, partial
+  overrides deep-merged onto a setup mapping.
 """
 from sim.errors import SetupError
 from sim.setup.schema import (NAME_PATTERN, TEMPERATURE_RANGE, AmbientConfig, CameraConfig,
                               ProjectorConfig, RegistrationConfig, RenderConfig, Setup, SurfaceConfig,
                               temperature_rgb)
-from sim.setup.suites import load_setups, load_suite, merge_setup, scene_path, select_setups
+from sim.setup.suites import (load_setups, load_suite, merge_setup, scene_path, select_setups,
+                              suite_test_frames)
 from sim.setup.toml import dump_setup, load_setup
 from sim.setup.validation import parse_setup
 
 __all__ = ["NAME_PATTERN", "TEMPERATURE_RANGE", "AmbientConfig", "CameraConfig",
            "ProjectorConfig", "RegistrationConfig", "RenderConfig", "Setup", "SetupError",
            "SurfaceConfig", "dump_setup", "load_setup", "load_setups", "load_suite", "merge_setup",
-           "parse_setup", "scene_path", "select_setups", "temperature_rgb"]
+           "parse_setup", "scene_path", "select_setups", "suite_test_frames", "temperature_rgb"]

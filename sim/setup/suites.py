@@ -1,7 +1,8 @@
 """Suites of setups, the shipped scenes, and what a command line names: a file, a suite or a scene.
 
 A suite file holds ``base = "default.toml"`` (relative to the suite file) and ``[[setup]]`` tables,
-each a ``name`` plus partial overrides deep-merged onto the base (:func:`load_suite`). The shipped
+each a ``name`` plus partial overrides deep-merged onto the base (:func:`load_suite`), and may say
+which kind of test frames its datasets take (``test_frames``, :func:`suite_test_frames`). The shipped
 setup and suite files are the package ``procam_scenes`` (the ``scenes/`` folder), found by name
 with :func:`scene_path`.
 """
@@ -13,7 +14,7 @@ import re
 from collections.abc import Mapping
 from pathlib import Path
 
-from sim import surfaces
+from sim import images, surfaces
 from sim.errors import SetupError
 from sim.options import option_fields, shown
 from sim.setup.schema import NAME_PATTERN, Setup, SurfaceConfig
@@ -64,6 +65,10 @@ def _shape_keys(old: object, new: object) -> set[str]:
     return keys(old) - keys(new)
 
 
+SUITE_KEYS = ("base", "setup", "test_frames")
+"""The top-level keys of a suite file."""
+
+
 def load_suite(path: Path | str) -> list[Setup]:
     """Read a suite file: ``base`` (a setup file, relative to the suite) and ``[[setup]]`` tables.
 
@@ -95,8 +100,9 @@ def _suite(suite: Mapping, path: Path) -> list[Setup]:
     """The setups of a suite file's mapping (see :func:`load_suite`)."""
     source = str(path)
     for key in suite:
-        if key not in ("base", "setup"):
-            raise SetupError(f"{source}: {key}: unknown key; valid keys of a suite: base, setup")
+        if key not in SUITE_KEYS:
+            raise SetupError(f"{source}: {key}: unknown key; valid keys of a suite: {', '.join(SUITE_KEYS)}")
+    _test_frames(suite, source)
     base_data: dict = {}
     if "base" in suite:
         if not isinstance(suite["base"], str):
@@ -121,6 +127,32 @@ def _suite(suite: Mapping, path: Path) -> list[Setup]:
         seen[setup.name.lower()] = i
         setups.append(setup)
     return setups
+
+
+def _test_frames(suite: Mapping, source: str) -> str | None:
+    """A suite mapping's ``test_frames`` (None where it does not say), checked."""
+    value = suite.get("test_frames")
+    if value is not None and value not in images.FRAME_KINDS:
+        raise SetupError(f"{source}: test_frames = {shown(value)}: expected one of "
+                         f"{', '.join(repr(k) for k in images.FRAME_KINDS)}")
+    return value
+
+
+def suite_test_frames(spec: str) -> str | None:
+    """The kind of test frames (:data:`sim.images.FRAME_KINDS`) a suite file asks its datasets to
+    take, its ``test_frames``; None for a setup file or a suite that does not say (the commands
+    then generate ``mixed`` frames). ``spec`` as :func:`load_setups` takes it.
+
+    Raises
+    ------
+    SetupError
+        If the file cannot be read, or its ``test_frames`` is not a kind of frames.
+    """
+    path = Path(spec)
+    if not path.exists():
+        path = scene_path(spec)
+    data = read_toml(path)
+    return _test_frames(data, str(path)) if "setup" in data else None
 
 
 def select_setups(setups: list[Setup], only: str | None, source: str) -> list[Setup]:
