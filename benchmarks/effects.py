@@ -15,7 +15,8 @@ closed loop on); this script then writes, per method, the change in dB against t
 Writes ``OUT/effects.md`` and ``OUT/effects.csv`` beside the bench's own files (``OUT/results.csv``,
 ``OUT/table1.md``, ``OUT/report.html`` after ``procam report OUT``). Resumable like the bench;
 ``--methods`` runs some methods only (e.g. CompenNet on a few rows, ``--only``), and the table
-keeps the runs of earlier calls (``OUT/effects_runs.csv``).
+keeps the runs of earlier calls (``OUT/effects_runs.csv``, and with ``--keep CSV`` those of calls
+into another folder, such as the runs kept in ``benchmarks/results/effects/256/``).
 """
 from __future__ import annotations
 
@@ -131,14 +132,16 @@ def misregistration(out: Path, setup: str) -> dict:
     return {f"misreg_{k}": px[k] for k in ("mean", "p95") if k in px}
 
 
-def merge_runs(out: Path) -> list[dict]:
-    """The runs of every call so far: ``OUT/effects_runs.csv`` (the calls before) updated with the
-    bench's ``OUT/results.csv`` (this call's runs, which replace earlier ones of the same setup and
-    method, each with its dataset's :func:`misregistration`), written back."""
+def merge_runs(out: Path, keep: Path | None = None) -> list[dict]:
+    """The runs of every call so far: ``OUT/effects_runs.csv`` (the calls before; with ``keep``,
+    an ``effects_runs.csv`` of calls into another folder too, the folder's own runs first) updated
+    with the bench's ``OUT/results.csv`` (this call's runs, which replace earlier ones of the same
+    setup and method, each with its dataset's :func:`misregistration`), written back."""
     store = out / "effects_runs.csv"
     new = [{**r, **misregistration(out, r["setup"])} for r in _rows(out / "results.csv")]
+    earlier = {(r["setup"], r["method"]): r for path in (keep, store) if path for r in _rows(path)}
     done = {(r["setup"], r["method"]) for r in new}
-    rows = new + [r for r in _rows(store) if (r["setup"], r["method"]) not in done]
+    rows = new + [r for key, r in earlier.items() if key not in done]
     cols = list(dict.fromkeys(k for r in rows for k in r))
     with io.StringIO() as text:
         writer = csv.DictWriter(text, cols, restval="")
@@ -215,6 +218,10 @@ def main() -> None:
     ap.add_argument("--surrogate-only", action="store_true",
                     help="score the surrogate benchmark only (no closed loop, no oracle: minutes instead of hours at 256²)")
     ap.add_argument("--only", help="comma-separated setup names (effects_base is always included)")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="an effects_runs.csv of calls into another folder (e.g. the one in "
+                         "benchmarks/results/effects/256/): its runs stay in the table where this "
+                         "folder has none of the same setup and method")
     args = ap.parse_args()
     suite = setups()
     if args.only:
@@ -228,13 +235,18 @@ def main() -> None:
     cfg = BenchConfig(profile="quick", methods=methods, sizes=(args.n_train,), tables=("1",),
                       size=args.size, n_test=args.n_test, overrides=overrides,
                       closed_loop=not args.surrogate_only)
-    run_bench(suite, args.out, cfg)
+    if args.keep is not None and not args.keep.is_file():
+        ap.error(f"--keep {args.keep}: no such file")
+    try:
+        run_bench(suite, args.out, cfg)
+    except ProcamError as exc:
+        ap.exit(1, f"effects: {exc}\n")
     how = (f"`python benchmarks/effects.py --out {args.out} --size {args.size} --n-train {args.n_train} "
            f"--n-test {args.n_test}" + "".join(f" --{k} {v}" for k, v in overrides.items())
            + (" --surrogate-only" if args.surrogate_only else "") + "`: "
            f"{args.size}² canonical, {args.n_train} training / {args.n_test} test pairs, quick profile"
            + "".join(f", CompenNet {k} {v}" for k, v in overrides.items()) + ". Base row: absolute dB.")
-    write(args.out, table(merge_runs(args.out)), how)
+    write(args.out, table(merge_runs(args.out, args.keep)), how)
     print((args.out / "effects.md").read_text())
 
 

@@ -6,6 +6,9 @@ import csv
 import importlib.util
 import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -73,3 +76,31 @@ def test_a_row_without_its_dataset_has_no_misregistration(effects, tmp_path):
     assert effects.misregistration(tmp_path, "effects_05") == {}
     _meta(tmp_path, "effects_05", {"method": "homography", "homography": {"status": "failed"}})
     assert effects.misregistration(tmp_path, "effects_05") == {}
+
+
+def test_runs_kept_elsewhere_fill_the_rows_this_folder_lacks(effects, tmp_path):
+    kept = tmp_path / "kept.csv"
+    _write_results(kept, [_row("effects_base", "tps", 26.0), _row("effects_05", "tps", 25.5),
+                          _row("effects_05", "nayar", 24.0)])
+    out = tmp_path / "out"
+    out.mkdir()
+    _write_results(out / "effects_runs.csv", [_row("effects_05", "nayar", 24.4)])  # the folder's own
+    _write_results(out / "results.csv", [_row("effects_base", "tps", 26.5), _row("effects_base", "nayar", 25.0)])
+    rows = {(r["setup"], r["method"]): r["psnr"] for r in effects.merge_runs(out, kept)}
+    assert rows == {("effects_base", "tps"): "26.5", ("effects_base", "nayar"): "25.0",  # this call's
+                    ("effects_05", "nayar"): "24.4", ("effects_05", "tps"): "25.5"}  # its folder's, then kept
+
+
+@pytest.mark.slow
+def test_a_folder_the_bench_refuses_is_named_without_traceback(tmp_path):
+    (tmp_path / "notes.txt").write_text("mine")
+    proc = subprocess.run([sys.executable, str(SCRIPT), "--out", str(tmp_path), "--size", "16", "--methods", "tps",
+                           "--only", "effects_01"], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(SCRIPT.parents[1])}, timeout=300)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith(f"effects: {tmp_path}: holds notes.txt")
+    proc = subprocess.run([sys.executable, str(SCRIPT), "--out", str(tmp_path / "new"), "--keep",
+                           str(tmp_path / "none.csv")], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(SCRIPT.parents[1])}, timeout=300)
+    assert proc.returncode == 2 and f"--keep {tmp_path / 'none.csv'}: no such file" in proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
