@@ -11,8 +11,8 @@ adaptive tone and picture style) is such a dependence. Each variant is one ``pro
 go on, or with more variants or methods to add them. A variant is finished once its folder's
 ``study.json``, ``results.csv`` and ``per_image.csv`` hold every setup and method at these settings
 (:func:`finished`); those three files are all the table needs, so a finished variant can be kept
-without its datasets and runs (``benchmarks/results/signature/runs/``) and copied into a new ``OUT``
-to measure the remaining variants in later sittings::
+(committed) without its datasets and runs and copied into a new ``OUT`` to measure the remaining
+variants in later sittings::
 
     .venv/bin/python benchmarks/signature.py --out OUT [--suite paper] [--setups A,B,...]
         [--variants default,dynamic_lamp,...,all_content] [--methods tps,tps-textured,compennet]
