@@ -19,7 +19,7 @@ demo: venv llvm
 test: venv llvm chromium
 	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q --durations=15
 
-# The inner loop while editing (a quarter of make test's time): the suite without the tests marked slow.
+# The inner loop while editing (about 2 minutes on 2 cores): the suite without the tests marked slow.
 test-fast: venv llvm
 	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q -m "not slow" --durations=15
 
