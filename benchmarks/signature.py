@@ -26,7 +26,6 @@ setups and images), the share of images where the first method is ahead and the 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 from pathlib import Path
@@ -39,7 +38,7 @@ from compensation.reports.tables import PAPER_TABLE1
 from effects import CONTENT, with_values
 from sim.errors import ProcamError
 from sim.images import FRAME_KINDS
-from sim.io import write_text
+from sim.io import read_json, write_text
 from sim.setup import load_setups
 
 SIX = ("light1_pos5_curves", "light1_pos1_squares", "light1_pos2_stripes", "light1_pos3_lavender",
@@ -67,9 +66,9 @@ def finished(folder: Path, setups: list[str], cfg: BenchConfig, n_train: int) ->
     ``setups``, whose ``results.csv`` has an ok row for every setup and method of ``cfg`` and whose
     ``per_image.csv`` exists. Its datasets and runs need not be there."""
     try:
-        study = json.loads((folder / "study.json").read_text(encoding="utf-8"))
+        study = read_json(folder / "study.json", "study record")
         rows = read_results(folder / "results.csv", [])
-    except (OSError, ValueError, ProcamError):
+    except ProcamError:
         return False
     same = (study.get("kind") == "bench" and study.get("profile") == cfg.profile
             and study.get("size") == [cfg.canonical] * 2 and study.get("n_test") == cfg.tests
