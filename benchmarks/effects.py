@@ -151,6 +151,13 @@ def merge_runs(out: Path, keep: Path | None = None) -> list[dict]:
     return rows
 
 
+def base_kept(keep: Path | None, methods: tuple[str, ...]) -> bool:
+    """Whether the runs kept in ``keep`` (an ``effects_runs.csv``) hold a finished base run of every
+    method in ``methods``, so that a call with ``--only`` need not render and run the base again."""
+    done = {r["method"] for r in _rows(keep) if r["setup"] == "effects_base" and r["status"] == "ok"} if keep else set()
+    return set(methods) <= done
+
+
 def table(rows: list[dict]) -> list[dict]:
     """Per setup and method, the change against the base (dB) of surrogate and closed-loop PSNR,
     and of the uncompensated captures, from the runs' result rows."""
@@ -217,26 +224,29 @@ def main() -> None:
                          f"{', '.join(METHODS)}; runs not made are blank); a later call with others resumes")
     ap.add_argument("--surrogate-only", action="store_true",
                     help="score the surrogate benchmark only (no closed loop, no oracle: minutes instead of hours at 256²)")
-    ap.add_argument("--only", help="comma-separated setup names (effects_base is always included)")
+    ap.add_argument("--only", help="comma-separated setup names (with effects_base, unless --keep "
+                                   "holds a finished base run of every method asked)")
     ap.add_argument("--keep", type=Path, default=None,
                     help="an effects_runs.csv of calls into another folder (e.g. the one in "
                          "benchmarks/results/effects/256/): its runs stay in the table where this "
                          "folder has none of the same setup and method")
     args = ap.parse_args()
-    suite = setups()
-    if args.only:
-        keep = {"effects_base", *args.only.split(",")}
-        suite = [s for s in suite if s.name in keep]
-    overrides = {k: v for k, v in (("iters", args.iters), ("patch", args.patch), ("batch", args.batch))
-                 if v is not None}
+    if args.keep is not None and not args.keep.is_file():
+        ap.error(f"--keep {args.keep}: no such file")
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     if not set(methods) <= set(METHODS):
         ap.error(f"--methods {args.methods}: expected some of {', '.join(METHODS)}")
+    suite = setups()
+    if args.only:
+        names = set(args.only.split(","))
+        if not base_kept(args.keep, methods):
+            names.add("effects_base")
+        suite = [s for s in suite if s.name in names]
+    overrides = {k: v for k, v in (("iters", args.iters), ("patch", args.patch), ("batch", args.batch))
+                 if v is not None}
     cfg = BenchConfig(profile="quick", methods=methods, sizes=(args.n_train,), tables=("1",),
                       size=args.size, n_test=args.n_test, overrides=overrides,
                       closed_loop=not args.surrogate_only)
-    if args.keep is not None and not args.keep.is_file():
-        ap.error(f"--keep {args.keep}: no such file")
     try:
         run_bench(suite, args.out, cfg)
     except ProcamError as exc:

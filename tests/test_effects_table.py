@@ -104,3 +104,14 @@ def test_a_folder_the_bench_refuses_is_named_without_traceback(tmp_path):
                           env={**os.environ, "PYTHONPATH": str(SCRIPT.parents[1])}, timeout=300)
     assert proc.returncode == 2 and f"--keep {tmp_path / 'none.csv'}: no such file" in proc.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_a_kept_base_is_not_run_again_unless_a_method_lacks_it(effects, tmp_path):
+    kept = tmp_path / "effects_runs.csv"
+    failed = {**_row("effects_base", "nayar", 0.0), "status": "failed"}
+    _write_results(kept, [_row("effects_base", "tps", 26.5), _row("effects_base", "compennet", 24.0),
+                          _row("effects_01", "nayar", 25.0), failed])
+    assert effects.base_kept(kept, ("tps", "compennet"))
+    assert not effects.base_kept(kept, ("tps", "nayar"))  # nayar's base run failed: run it again
+    assert not effects.base_kept(kept, ("tps-textured",))
+    assert not effects.base_kept(None, ("tps",))
