@@ -84,4 +84,8 @@ def test_demo_tiny(tmp_path, capsys):
         assert again[name]["closed_loop"]["psnr"] != results[name]["closed_loop"]["psnr"]
     assert "(target policy global: at most" in capsys.readouterr().out
     with open(tmp_path / "results.csv", newline="") as f:
-        assert {r["target_policy"] for r in csv.DictReader(f)} == {"global"}
+        rows = list(csv.DictReader(f))
+    assert {r["target_policy"] for r in rows} == {"global"}
+    # the share the map left out of reach is kept beside the policy's (raised where that admits no contrast)
+    used = again["tps"]["closed_loop"]["target"]["out_of_reach_used"]
+    assert used >= 0.01 and all(float(r["target_out_of_reach_used"]) == pytest.approx(used, rel=1e-5) for r in rows)

@@ -41,6 +41,8 @@ def test_global_map_is_the_brute_force_optimum(seed):
     rng = np.random.default_rng(seed)
     n = int(rng.integers(3, 12))
     black, white = _setup(rng, n)
+    if seed % 2:  # 8-bit-like captures: equal bounds at many pixels
+        black, white = np.round(black * 8) / 8, np.round(white * 8) / 8
     fraction = float(rng.choice([0.0, 0.1, 0.25, 0.4]))
     allowed = int(np.floor(fraction * n + 1e-9))
     m = global_map(black, white, fraction)

@@ -394,12 +394,13 @@ def target_cells(closed: dict) -> dict:
     """The ``results.csv`` cells of closed-loop scores' target and reach (empty without them).
 
     >>> target_cells({"reachable_fraction": 0.9, "target": {"policy": "global", "out_of_reach": 0.01,
-    ...                                                      "a": 0.5, "b": 0.1}})
-    {'reachable_fraction': 0.9, 'target_policy': 'global', 'target_out_of_reach': 0.01, 'target_a': 0.5, 'target_b': 0.1}
+    ...                                                      "out_of_reach_used": 0.2, "a": 0.5, "b": 0.1}})
+    {'reachable_fraction': 0.9, 'target_policy': 'global', 'target_out_of_reach': 0.01, 'target_out_of_reach_used': 0.2, 'target_a': 0.5, 'target_b': 0.1}
     """
     target = closed.get("target") or {}
     return {"reachable_fraction": closed.get("reachable_fraction"), "target_policy": target.get("policy"),
-            "target_out_of_reach": target.get("out_of_reach"), "target_a": target.get("a"),
+            "target_out_of_reach": target.get("out_of_reach"),
+            "target_out_of_reach_used": target.get("out_of_reach_used"), "target_a": target.get("a"),
             "target_b": target.get("b")}
 
 

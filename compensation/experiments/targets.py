@@ -34,7 +34,9 @@ infeasible), and recorded as ``out_of_reach_used``.
   smallest white channel of pixel p, a pixel is in reach when ``b ≥ Lp`` and ``a + b ≤ Up``. If
   the optimum leaves out ``k`` pixels by its ``b``, its ``b`` is the (k + 1)-th largest ``Lp``
   (any larger b only shrinks a), and its ``a + b`` is then the (m − k + 1)-th smallest ``Up`` of
-  the pixels that ``b`` keeps (m: the allowed count). Trying every ``k`` from 0 to m is exact.
+  the pixels that ``b`` keeps (m: the allowed count). Trying every ``k`` from 0 to m is exact; equal
+  ``Lp`` give one candidate, and that ``Up`` is among the m + 1 smallest of all pixels, so a
+  256² view of 8-bit captures is solved in a fraction of a second.
 - ``image`` is solved to a certified tolerance (:func:`image_map`). For a fixed ``a`` each pixel
   allows an interval of ``b``, ``[max_c (L − a·y), min_c (U − a·y)]``, and the best ``b`` is the
   point covered by most intervals (exact, by sorting the endpoints). The feasible values of ``a``
@@ -186,17 +188,28 @@ def global_map(black: np.ndarray, white: np.ndarray, out_of_reach: float = DEFAU
     """
     lo = np.asarray(black, np.float64).max(axis=0).ravel()
     hi = np.asarray(white, np.float64).min(axis=0).ravel()
+    n = lo.size
     order = np.argsort(-lo, kind="stable")
+    desc = lo[order]
+    rank = np.empty(n, np.intp)
+    rank[order] = np.arange(n)  # a pixel's place in the descending order of Lp
+    by_hi = np.argsort(hi, kind="stable")
 
     def solve(allowed: int) -> TargetMap | None:
+        # the candidates b: the allowed + 1 largest Lp, largest first, once per distinct value (the
+        # same b leaves out the same pixels); ``above``: how many pixels each leaves out by its b
+        values = np.unique(desc[:min(allowed, n - 1) + 1])[::-1]
+        above = np.searchsorted(-desc, -values, side="left")
+        # the (spare + 1)-th smallest Up of the pixels a b keeps is among the allowed + 1 smallest
+        # Up overall, as b leaves out at most ``allowed - spare`` pixels
+        cand = by_hi[:min(allowed + 1, n)]
+        cand_rank, cand_hi = rank[cand], hi[cand]
         best = None
-        for k in range(min(allowed, lo.size - 1) + 1):
-            b = lo[order[k]]
-            kept = hi[lo <= b]
-            spare = allowed - (lo.size - kept.size)
-            if spare < 0 or spare >= kept.size:
+        for b, j in zip(values, above):
+            spare = allowed - j
+            if spare < 0 or spare >= n - j:
                 continue
-            top = np.partition(kept, spare)[spare]
+            top = cand_hi[cand_rank >= j][spare]
             if best is None or top - b > best[0] - best[1]:
                 best = (top, b)
         if best is None or best[0] - best[1] <= 0:
