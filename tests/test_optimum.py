@@ -11,8 +11,8 @@ from scipy.optimize import lsq_linear
 from compensation.data import load_setup_data
 from compensation.experiments.closed_loop import (closed_loop_target, iterative_refinement, project,
                                                  simulator_for)
-from compensation.experiments.optimum import (_apply, _offsets, box_least_squares, colour_jacobian,
-                                             evaluation_count, local_jacobian, local_least_squares, optimum)
+from compensation.experiments.optimum import (_apply, _apply_transposed, _offsets, box_least_squares,
+                                             colour_jacobian, evaluation_count, local_jacobian, local_least_squares, optimum)
 from compensation.experiments.targets import TargetPolicy
 from compensation.methods import METHODS, make_config
 from compensation.scores.metrics import delta_e_per_image, psnr_per_image, ssim_per_image
@@ -94,6 +94,15 @@ def test_the_step_across_pixels_is_scipys_bounded_least_squares():
         return np.sum((dense @ v - r.reshape(-1).numpy()) ** 2) + 1e-3 * np.sum(v ** 2)
     assert cost(d.reshape(-1).numpy()) == pytest.approx(cost(ref), rel=1e-4)
     assert cost(d.reshape(-1).numpy()) < 0.95 * cost(own.reshape(-1).numpy())  # measured 0.90: neighbours matter
+
+
+def test_the_transposed_jacobian_is_the_adjoint():
+    g = torch.Generator().manual_seed(2)
+    jac = torch.randn(2, 5, 7, 3, 9, 3, generator=g, dtype=torch.float64)
+    d, u = (torch.randn(2, 5, 7, 3, generator=g, dtype=torch.float64) for _ in range(2))
+    # <G d, u> = <d, G^T u> for each image, at the edges too (shifted-in zeros)
+    lhs, rhs = (_apply(jac, d, 1) * u).sum((1, 2, 3)), (d * _apply_transposed(jac, u, 1)).sum((1, 2, 3))
+    assert torch.allclose(lhs, rhs, rtol=1e-12, atol=1e-12)
 
 
 def _dataset(tmp_path, name: str, n_test: int = 4, **sections):

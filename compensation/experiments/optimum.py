@@ -225,11 +225,11 @@ def _apply(jac: torch.Tensor, d: torch.Tensor, radius: int) -> torch.Tensor:
 
 def _apply_transposed(jac: torch.Tensor, u: torch.Tensor, radius: int) -> torch.Tensor:
     """Gᵀ·u: (N, H, W, 3) → (N, H, W, 3)."""
-    out = torch.zeros_like(u)
+    parts = torch.einsum("nhwckj,nhwc->nkjhw", jac, u)  # every offset's share, in one product
+    out = torch.zeros_like(u.permute(0, 3, 1, 2))
     for k, (dy, dx) in enumerate(_offsets(radius)):
-        part = (jac[..., k, :].transpose(-1, -2) @ u[..., None])[..., 0]
-        out += _shift(part.permute(0, 3, 1, 2), -dy, -dx).permute(0, 2, 3, 1)
-    return out
+        out += _shift(parts[:, k], -dy, -dx)
+    return out.permute(0, 2, 3, 1)
 
 
 def local_least_squares(jac: torch.Tensor, residual: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor,
