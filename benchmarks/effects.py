@@ -16,7 +16,8 @@ Writes ``OUT/effects.md`` and ``OUT/effects.csv`` beside the bench's own files (
 ``OUT/table1.md``, ``OUT/report.html`` after ``procam report OUT``). Resumable like the bench;
 ``--methods`` runs some methods only (e.g. CompenNet on a few rows, ``--only``), and the table
 keeps the runs of earlier calls (``OUT/effects_runs.csv``, and with ``--keep CSV`` those of calls
-into another folder, such as the runs kept in ``benchmarks/results/effects/256/``).
+into another folder, such as the runs kept in ``benchmarks/results/effects/256/``; each run keeps
+the size, pair counts and CompenNet budget it was made at, and runs made at others are refused).
 """
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ import math
 from pathlib import Path
 
 from compensation.experiments.bench import BenchConfig, run_bench
+from compensation.methods import get_method
 from sim.errors import ProcamError
 from sim.io import read_json, write_text
 from sim.layout import META_FILE
@@ -71,6 +73,8 @@ OFF = {("surface", "relief"): 0.0, ("projector", "distortion_k1"): 0.0, ("projec
        ("camera", "vignetting"): 0.0, ("camera", "distortion"): 0.0, ("camera", "jpeg_quality"): 0,
        ("camera", "exposure_mode"): "manual", ("registration", "method"): "exact"}
 """Each effect's off value."""
+NETWORK_OPTIONS = ("iters", "patch", "batch")
+"""Training options of the call kept with the runs of the methods that take them."""
 
 
 def with_values(setup, name: str, values: dict):
@@ -132,13 +136,51 @@ def misregistration(out: Path, setup: str) -> dict:
     return {f"misreg_{k}": px[k] for k in ("mean", "p95") if k in px}
 
 
-def merge_runs(out: Path, keep: Path | None = None) -> list[dict]:
+def made_at(method: str, size: int, n_train: int, n_test: int, overrides: dict) -> dict[str, str]:
+    """The settings a call makes a method's runs at, as ``effects_runs.csv`` keeps them: ``size``,
+    ``n_train``, ``n_test`` and, for a method that takes them, the :data:`NETWORK_OPTIONS` given
+    ("" for the profile's).
+
+    >>> made_at("tps", 256, 125, 50, {"iters": 2000})
+    {'size': '256', 'n_train': '125', 'n_test': '50'}
+    >>> made_at("compennet", 256, 125, 50, {"iters": 2000, "patch": 64})
+    {'size': '256', 'n_train': '125', 'n_test': '50', 'iters': '2000', 'patch': '64', 'batch': ''}
+    """
+    names = get_method(method).options.names()
+    return {"size": str(size), "n_train": str(n_train), "n_test": str(n_test),
+            **{k: str(overrides.get(k, "")) for k in NETWORK_OPTIONS if k in names}}
+
+
+def check_kept(path: Path | None, settings) -> None:
+    """Refuse an ``effects_runs.csv`` holding runs made at other settings than ``settings(method)``
+    (:func:`made_at` of this call): their changes against this call's base would mix sizes, test
+    counts or training budgets.
+
+    Raises
+    ------
+    ProcamError
+        Naming the file, the run, and each setting with its value there and in this call.
+    """
+    for r in _rows(path) if path else []:
+        want = settings(r["method"])
+        if any(r.get(k) is None for k in want):
+            raise ProcamError(f"{path}: run {r['setup']}/{r['method']} carries no record of the settings "
+                              f"it was made at ({', '.join(want)}): keep only runs written by this script")
+        differ = [f"{k} {r[k] or 'default'} (this call: {v or 'default'})" for k, v in want.items() if r[k] != v]
+        if differ:
+            raise ProcamError(f"{path}: run {r['setup']}/{r['method']} was made at {', '.join(differ)}: "
+                              "keep runs of the same settings, or write to another --out")
+
+
+def merge_runs(out: Path, settings, keep: Path | None = None) -> list[dict]:
     """The runs of every call so far: ``OUT/effects_runs.csv`` (the calls before; with ``keep``,
     an ``effects_runs.csv`` of calls into another folder too, the folder's own runs first) updated
     with the bench's ``OUT/results.csv`` (this call's runs, which replace earlier ones of the same
-    setup and method, each with its dataset's :func:`misregistration`), written back."""
+    setup and method, each with its dataset's :func:`misregistration` and ``settings(method)``,
+    :func:`made_at` of this call), written back. Check the earlier runs with :func:`check_kept`
+    first."""
     store = out / "effects_runs.csv"
-    new = [{**r, **misregistration(out, r["setup"])} for r in _rows(out / "results.csv")]
+    new = [{**r, **misregistration(out, r["setup"]), **settings(r["method"])} for r in _rows(out / "results.csv")]
     earlier = {(r["setup"], r["method"]): r for path in (keep, store) if path for r in _rows(path)}
     done = {(r["setup"], r["method"]) for r in new}
     rows = new + [r for key, r in earlier.items() if key not in done]
@@ -233,6 +275,16 @@ def main() -> None:
     args = ap.parse_args()
     if args.keep is not None and not args.keep.is_file():
         ap.error(f"--keep {args.keep}: no such file")
+    overrides = {k: v for k, v in (("iters", args.iters), ("patch", args.patch), ("batch", args.batch))
+                 if v is not None}
+
+    def settings(method: str) -> dict[str, str]:
+        return made_at(method, args.size, args.n_train, args.n_test, overrides)
+    try:
+        for path in (args.keep, args.out / "effects_runs.csv"):
+            check_kept(path, settings)
+    except ProcamError as exc:
+        ap.exit(1, f"effects: {exc}\n")
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     if not set(methods) <= set(METHODS):
         ap.error(f"--methods {args.methods}: expected some of {', '.join(METHODS)}")
@@ -242,8 +294,6 @@ def main() -> None:
         if not base_kept(args.keep, methods):
             names.add("effects_base")
         suite = [s for s in suite if s.name in names]
-    overrides = {k: v for k, v in (("iters", args.iters), ("patch", args.patch), ("batch", args.batch))
-                 if v is not None}
     cfg = BenchConfig(profile="quick", methods=methods, sizes=(args.n_train,), tables=("1",),
                       size=args.size, n_test=args.n_test, overrides=overrides,
                       closed_loop=not args.surrogate_only)
@@ -256,7 +306,7 @@ def main() -> None:
            + (" --surrogate-only" if args.surrogate_only else "") + "`: "
            f"{args.size}² canonical, {args.n_train} training / {args.n_test} test pairs, quick profile"
            + "".join(f", CompenNet {k} {v}" for k, v in overrides.items()) + ". Base row: absolute dB.")
-    write(args.out, table(merge_runs(args.out, args.keep)), how)
+    write(args.out, table(merge_runs(args.out, settings, args.keep)), how)
     print((args.out / "effects.md").read_text())
 
 

@@ -34,7 +34,18 @@ def _write_results(path: Path, rows: list[dict]) -> None:
 
 def _row(setup: str, method: str, psnr: float, cl: str = "") -> dict:
     return {"setup": setup, "method": method, "status": "ok", "psnr": psnr, "cl_psnr": cl,
-            "unc_psnr": 9.0 if setup == "effects_base" else 8.5, "cl_unc_psnr": "", "table": "1"}
+            "unc_psnr": 9.0 if setup == "effects_base" else 8.5, "cl_unc_psnr": "", "table": "1",
+            "n_train": 125}
+
+
+def _made_at(effects, **options):
+    """A call's settings (:func:`made_at` at 16², 125 / 4 pairs)."""
+    return lambda method: effects.made_at(method, 16, 125, 4, options)
+
+
+def _kept(effects, setup: str, method: str, psnr: float, **options) -> dict:
+    """A run an earlier call kept, with the settings it was made at."""
+    return {**_row(setup, method, psnr), **_made_at(effects, **options)(method)}
 
 
 def _meta(out: Path, setup: str, registration: dict) -> None:
@@ -44,7 +55,7 @@ def _meta(out: Path, setup: str, registration: dict) -> None:
 
 def test_rows_are_changes_against_the_base_with_their_misregistration(effects, tmp_path):
     # an earlier call's runs (relief row, TPS only), kept in effects_runs.csv
-    _write_results(tmp_path / "effects_runs.csv", [_row("effects_01", "tps", 25.0)])
+    _write_results(tmp_path / "effects_runs.csv", [_kept(effects, "effects_01", "tps", 25.0)])
     # this call: the base and the relief row again with CompenNet, their datasets on disk
     _write_results(tmp_path / "results.csv", [_row("effects_base", "tps", 26.5, "26.0"),
                                               _row("effects_base", "compennet", 24.0, "25.5"),
@@ -52,7 +63,7 @@ def test_rows_are_changes_against_the_base_with_their_misregistration(effects, t
     _meta(tmp_path, "effects_base", {"method": "exact", "homography": {"status": "not estimated"}})
     _meta(tmp_path, "effects_01", {"method": "homography", "homography": {
         "status": "estimated", "canonical_px": {"mean": 0.46, "p95": 1.13, "max": 2.9}}})
-    rows = effects.merge_runs(tmp_path)
+    rows = effects.merge_runs(tmp_path, _made_at(effects))
     assert {(r["setup"], r["method"]) for r in rows} == {
         ("effects_base", "tps"), ("effects_base", "compennet"), ("effects_01", "compennet"), ("effects_01", "tps")}
     lines = {line["setup"]: line for line in effects.table(rows)}
@@ -80,15 +91,35 @@ def test_a_row_without_its_dataset_has_no_misregistration(effects, tmp_path):
 
 def test_runs_kept_elsewhere_fill_the_rows_this_folder_lacks(effects, tmp_path):
     kept = tmp_path / "kept.csv"
-    _write_results(kept, [_row("effects_base", "tps", 26.0), _row("effects_05", "tps", 25.5),
-                          _row("effects_05", "nayar", 24.0)])
+    _write_results(kept, [_kept(effects, "effects_base", "tps", 26.0), _kept(effects, "effects_05", "tps", 25.5),
+                          _kept(effects, "effects_05", "nayar", 24.0)])
     out = tmp_path / "out"
     out.mkdir()
-    _write_results(out / "effects_runs.csv", [_row("effects_05", "nayar", 24.4)])  # the folder's own
+    _write_results(out / "effects_runs.csv", [_kept(effects, "effects_05", "nayar", 24.4)])  # the folder's own
     _write_results(out / "results.csv", [_row("effects_base", "tps", 26.5), _row("effects_base", "nayar", 25.0)])
-    rows = {(r["setup"], r["method"]): r["psnr"] for r in effects.merge_runs(out, kept)}
+    made_at = _made_at(effects)
+    for path in (kept, out / "effects_runs.csv"):
+        effects.check_kept(path, made_at)
+    merged = effects.merge_runs(out, made_at, kept)
+    rows = {(r["setup"], r["method"]): r["psnr"] for r in merged}
     assert rows == {("effects_base", "tps"): "26.5", ("effects_base", "nayar"): "25.0",  # this call's
                     ("effects_05", "nayar"): "24.4", ("effects_05", "tps"): "25.5"}  # its folder's, then kept
+    assert {(r["size"], r["n_test"]) for r in merged} == {("16", "4")}  # this call's runs carry their settings
+
+
+def test_runs_made_at_other_settings_are_refused_by_name(effects, tmp_path):
+    kept = tmp_path / "effects_runs.csv"
+    _write_results(kept, [_kept(effects, "effects_base", "tps", 26.0),
+                          _kept(effects, "effects_base", "compennet", 24.0, iters=2000, patch=64)])
+    effects.check_kept(kept, _made_at(effects, iters=2000, patch=64))
+    with pytest.raises(effects.ProcamError, match=r"effects_runs.csv: run effects_base/compennet was made at "
+                                                  r"iters 2000 \(this call: 300\)"):
+        effects.check_kept(kept, _made_at(effects, iters=300, patch=64))  # TPS takes no iterations: not refused
+    with pytest.raises(effects.ProcamError, match=r"run effects_base/tps was made at size 16 \(this call: 256\)"):
+        effects.check_kept(kept, lambda m: effects.made_at(m, 256, 125, 4, {}))
+    _write_results(kept, [_row("effects_base", "tps", 26.0)])  # written before runs carried their settings
+    with pytest.raises(effects.ProcamError, match="carries no record of the settings"):
+        effects.check_kept(kept, _made_at(effects))
 
 
 @pytest.mark.slow
