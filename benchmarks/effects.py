@@ -162,8 +162,14 @@ def check_kept(path: Path | None, settings) -> None:
         Naming the file, the run, and each setting with its value there and in this call.
     """
     for r in _rows(path) if path else []:
-        want = settings(r["method"])
-        if any(r.get(k) is None for k in want):
+        if missing := [k for k in ("setup", "method", "status") if not r.get(k)]:
+            raise ProcamError(f"{path}: a run without {', '.join(missing)}: expected the effects_runs.csv "
+                              "this script writes")
+        try:
+            want = settings(r["method"])
+        except ProcamError as exc:
+            raise ProcamError(f"{path}: run {r['setup']}/{r['method']}: {exc}") from None
+        if any(not r.get(k) for k in ("size", "n_train", "n_test")) or any(r.get(k) is None for k in want):
             raise ProcamError(f"{path}: run {r['setup']}/{r['method']} carries no record of the settings "
                               f"it was made at ({', '.join(want)}): keep only runs written by this script")
         differ = [f"{k} {r[k] or 'default'} (this call: {v or 'default'})" for k, v in want.items() if r[k] != v]
@@ -181,7 +187,7 @@ def merge_runs(out: Path, settings, keep: Path | None = None) -> list[dict]:
     first."""
     store = out / "effects_runs.csv"
     new = [{**r, **misregistration(out, r["setup"]), **settings(r["method"])} for r in _rows(out / "results.csv")]
-    earlier = {(r["setup"], r["method"]): r for path in (keep, store) if path for r in _rows(path)}
+    earlier = _earlier(out, keep)
     done = {(r["setup"], r["method"]) for r in new}
     rows = new + [r for key, r in earlier.items() if key not in done]
     cols = list(dict.fromkeys(k for r in rows for k in r))
@@ -193,11 +199,18 @@ def merge_runs(out: Path, settings, keep: Path | None = None) -> list[dict]:
     return rows
 
 
-def base_kept(keep: Path | None, methods: tuple[str, ...]) -> bool:
-    """Whether the runs kept in ``keep`` (an ``effects_runs.csv``) hold a finished base run of every
-    method in ``methods``, so that a call with ``--only`` need not render and run the base again."""
-    done = {r["method"] for r in _rows(keep) if r["setup"] == "effects_base" and r["status"] == "ok"} if keep else set()
-    return set(methods) <= done
+def _earlier(out: Path, keep: Path | None) -> dict[tuple[str, str], dict]:
+    """The runs of earlier calls by (setup, method): those of ``keep``, replaced by the folder's own
+    (``OUT/effects_runs.csv``)."""
+    return {(r["setup"], r["method"]): r for path in (keep, out / "effects_runs.csv") if path for r in _rows(path)}
+
+
+def base_kept(out: Path, keep: Path | None, methods: tuple[str, ...]) -> bool:
+    """Whether the runs of earlier calls (:func:`_earlier`, as the table will merge them) hold a
+    finished base run of every method in ``methods``, so that a call with ``--only`` need not render
+    and run the base again."""
+    earlier = _earlier(out, keep)
+    return all(earlier.get(("effects_base", m), {}).get("status") == "ok" for m in methods)
 
 
 def table(rows: list[dict]) -> list[dict]:
@@ -291,7 +304,7 @@ def main() -> None:
     suite = setups()
     if args.only:
         names = set(args.only.split(","))
-        if not base_kept(args.keep, methods):
+        if not base_kept(args.out, args.keep, methods):
             names.add("effects_base")
         suite = [s for s in suite if s.name in names]
     cfg = BenchConfig(profile="quick", methods=methods, sizes=(args.n_train,), tables=("1",),

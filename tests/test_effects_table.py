@@ -138,11 +138,35 @@ def test_a_folder_the_bench_refuses_is_named_without_traceback(tmp_path):
 
 
 def test_a_kept_base_is_not_run_again_unless_a_method_lacks_it(effects, tmp_path):
-    kept = tmp_path / "effects_runs.csv"
+    kept, out = tmp_path / "kept.csv", tmp_path / "out"
+    out.mkdir()
     failed = {**_row("effects_base", "nayar", 0.0), "status": "failed"}
     _write_results(kept, [_row("effects_base", "tps", 26.5), _row("effects_base", "compennet", 24.0),
                           _row("effects_01", "nayar", 25.0), failed])
-    assert effects.base_kept(kept, ("tps", "compennet"))
-    assert not effects.base_kept(kept, ("tps", "nayar"))  # nayar's base run failed: run it again
-    assert not effects.base_kept(kept, ("tps-textured",))
-    assert not effects.base_kept(None, ("tps",))
+    assert effects.base_kept(out, kept, ("tps", "compennet"))
+    assert not effects.base_kept(out, kept, ("tps", "nayar"))  # nayar's base run failed: run it again
+    assert not effects.base_kept(out, kept, ("tps-textured",))
+    assert not effects.base_kept(out, None, ("tps",))
+    # the folder's own runs win over the kept ones, in the table as here
+    _write_results(out / "effects_runs.csv", [{**_row("effects_base", "tps", 0.0), "status": "failed"},
+                                              _row("effects_base", "nayar", 25.0)])
+    assert not effects.base_kept(out, kept, ("tps",)) and effects.base_kept(out, kept, ("nayar", "compennet"))
+
+
+def test_the_script_refuses_kept_runs_before_running_anything(effects, tmp_path, monkeypatch, capsys):
+    kept, out = tmp_path / "kept.csv", tmp_path / "out"
+    _write_results(kept, [_kept(effects, "effects_base", "tps", 26.0)])  # made at 16²
+    ran = []
+    monkeypatch.setattr(effects, "run_bench", lambda *a: ran.append(a))
+    for rows, expected in (([], "was made at size 16 (this call: 32)"),
+                           ([{"setup": "effects_base", "status": "ok"}], "a run without method"),
+                           ([{**_row("effects_base", "foo", 1.0), "size": "32"}], "run effects_base/foo: unknown method")):
+        if rows:
+            _write_results(kept, rows)
+        monkeypatch.setattr(sys, "argv", ["effects.py", "--out", str(out), "--size", "32", "--n-test", "4",
+                                          "--keep", str(kept), "--only", "effects_05"])
+        with pytest.raises(SystemExit) as exit_:
+            effects.main()
+        err = capsys.readouterr().err
+        assert exit_.value.code == 1 and err.startswith(f"effects: {kept}: ") and expected in err, err
+    assert ran == [] and not out.exists()

@@ -25,15 +25,16 @@ def _in_reach(y, black, white, a, b, eps=1e-9):
     return ((t >= black - eps) & (t <= white + eps)).all(axis=0).ravel()
 
 
-def _brute_global(black, white, allowed):
+def _brute_global(black, white, allowed, with_b=False):
     """Largest a over every pair (b, t) of candidate values (pixel bounds) with ≤ allowed pixels
-    where b < max L or t > min U."""
+    where b < max L or t > min U (with ``with_b``, also the largest b of the pairs that reach it)."""
     lo, hi = black.max(0).ravel(), white.min(0).ravel()
-    best = -np.inf
+    best, best_b = -np.inf, -np.inf
     for b, t in itertools.product(lo, hi):
         if ((lo > b) | (hi < t)).sum() <= allowed:
-            best = max(best, t - b)
-    return best
+            if t - b > best or (t - b == best and b > best_b):
+                best, best_b = t - b, b
+    return (best, best_b) if with_b else best
 
 
 @pytest.mark.parametrize("seed", range(30))
@@ -50,12 +51,22 @@ def test_global_map_is_the_brute_force_optimum(seed):
     used = round(m.out_of_reach * n)
     assert used == allowed or (used > allowed and _brute_global(black, white, used - 1) <= 0)
     allowed = used
-    brute = _brute_global(black, white, allowed)
+    brute, brute_b = _brute_global(black, white, allowed, with_b=True)
     assert m.a == pytest.approx(min(brute, 1.0), abs=1e-12)
+    assert m.b == brute_b  # of equal contrasts, the map leaving out the fewest pixels by its b
     # the map is feasible: every y in [0, 1] maps into reach at all but the allowed pixels
     out = ~(_in_reach(np.zeros((3, 1, n)), black, white, m.a, m.b)
             & _in_reach(np.ones((3, 1, n)), black, white, m.a, m.b))
     assert out.sum() <= allowed
+
+
+def test_of_equal_contrasts_the_global_map_takes_the_largest_b():
+    # one pixel may be left out: leaving out the second by b (b = 0, a + b = 0.5) or the first by
+    # a + b (b = 0.1, a + b = 0.6) both give a = 0.5; the larger b leaves out no pixel by its b
+    black = np.array([0.0, 0.1]).reshape(1, 1, 2).repeat(3, 0)
+    white = np.array([0.5, 0.6]).reshape(1, 1, 2).repeat(3, 0)
+    m = global_map(black, white, 0.5)
+    assert (round(m.a, 12), m.b) == (0.5, 0.1)
 
 
 def _brute_image(y, black, white, allowed):
