@@ -170,3 +170,36 @@ def test_the_script_refuses_kept_runs_before_running_anything(effects, tmp_path,
         err = capsys.readouterr().err
         assert exit_.value.code == 1 and err.startswith(f"effects: {kept}: ") and expected in err, err
     assert ran == [] and not out.exists()
+
+
+def _images(setup: str, method: str, psnrs) -> list[dict]:
+    return [{"setup": setup, "method": method, "image": i, "psnr": v, "cl_psnr": "", "table": "1",
+             "n_train": 125} for i, v in enumerate(psnrs, start=1)]
+
+
+def test_paired_differences_per_row_from_the_images_of_every_call(effects, tmp_path):
+    kept, out = tmp_path / "kept" / "effects_runs.csv", tmp_path / "out"
+    kept.parent.mkdir()
+    out.mkdir()
+    # kept: the base of both methods, and a TPS row the folder will run again
+    _write_results(kept.with_name("effects_per_image.csv"),
+                   _images("effects_base", "compennet", [26.0, 27.0, 25.0])
+                   + _images("effects_base", "tps-textured", [26.5, 26.5, 26.5])
+                   + _images("effects_17", "tps-textured", [1.0, 1.0, 1.0]))
+    # this call: the dynamic-lamp row, CompenNet 1 dB ahead on two images of three, 2 dB behind on one
+    _write_results(out / "per_image.csv", _images("effects_17", "compennet", [25.0, 25.0, 22.0])
+                   + _images("effects_17", "tps-textured", [24.0, 24.0, 24.0]))
+    images = effects.merge_images(out, kept)
+    assert len(images) == 12 and {r["psnr"] for r in images if r["setup"] == "effects_17"
+                                  and r["method"] == "tps-textured"} == {"24.0"}  # this call's replace the kept
+    assert (out / "effects_per_image.csv").read_text().splitlines()[0] == ",".join(effects.IMAGE_COLUMNS)
+    pairs = {(p["setup"], p["a"], p["b"]): p for p in effects.paired(images)}
+    assert set(pairs) == {("effects_base", "compennet", "tps-textured"), ("effects_17", "compennet", "tps-textured")}
+    lamp = pairs["effects_17", "compennet", "tps-textured"]
+    assert lamp["mean"] == pytest.approx(0.0) and lamp["share"] == pytest.approx(2 / 3) and lamp["images"] == 3
+    assert lamp["lo"] <= -0.9 and lamp["hi"] >= 0.9  # three images: the interval spans their spread
+    assert pairs["effects_base", "compennet", "tps-textured"]["mean"] == pytest.approx(-0.5)
+    effects.write(out, [], "how", list(pairs.values()))
+    md = (out / "effects.md").read_text()
+    assert "| projector dynamic lamp (depth 0.55, the measured one) | +0.00 (" in md and "67 %) | – | – |" in md
+    assert (out / "effects_paired.csv").read_text().count("\n") == 3
