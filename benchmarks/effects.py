@@ -26,13 +26,13 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import io
 import math
 from pathlib import Path
 
 from compensation.experiments.bench import BenchConfig, run_bench
 from compensation.methods import get_method
 from compensation.reports.paired import image_differences, paired_comparison
+from compensation.reports.summary import write_csv
 from sim.errors import ProcamError
 from sim.io import read_json, write_text
 from sim.layout import META_FILE
@@ -220,13 +220,9 @@ def merge_images(out: Path, keep: Path | None = None) -> list[dict]:
 
 
 def _write_csv(path: Path, rows: list[dict], cols=None) -> None:
-    """``rows`` as a CSV file (columns: ``cols``, else every key in order of appearance)."""
-    cols = list(cols or dict.fromkeys(k for r in rows for k in r))
-    with io.StringIO() as text:
-        writer = csv.DictWriter(text, cols, restval="")
-        writer.writeheader()
-        writer.writerows(rows)
-        write_text(path, text.getvalue())
+    """``rows`` as they are, by :func:`~compensation.reports.summary.write_csv` (columns: ``cols``,
+    else every key in order of appearance)."""
+    write_csv(path, list(cols or dict.fromkeys(k for r in rows for k in r)), rows, digits=None)
 
 
 def _earlier(out: Path, keep: Path | None) -> dict[tuple[str, str], dict]:
