@@ -15,13 +15,15 @@ STAMP  := $(VENV)/.procam-installed
 demo: venv llvm
 	OMP_WAIT_POLICY=PASSIVE $(VENV)/bin/procam demo --out data
 
-# The whole suite, its 15 slowest tests listed.
+# The whole suite, its 15 slowest tests listed: one pytest-xdist worker per core, each test file
+# on one worker (its module fixtures built once).
+PARALLEL := -n auto --dist loadfile
 test: venv llvm chromium
-	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q --durations=15
+	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q $(PARALLEL) --durations=15
 
 # The inner loop while editing (about 2 minutes on 2 cores): the suite without the tests marked slow.
 test-fast: venv llvm
-	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q -m "not slow" --durations=15
+	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q $(PARALLEL) -m "not slow" --durations=15
 
 # Speed figures, measured side by side (a few minutes on 2 cores); see benchmarks/results/.
 bench: venv llvm

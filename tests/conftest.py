@@ -2,11 +2,28 @@
 hygiene. The helpers the test modules share are in ``helpers.py``."""
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from sim.variant import FALLBACK, choose_variant
 
 VARIANTS = sorted({choose_variant(), FALLBACK})
+
+LONGEST_MODULES = ("test_nonsquare.py", "test_demo.py")
+"""Test modules that take over a minute each on one core (measured 88 s and 85 s, the next 53 s):
+they are collected first, so that under ``make test`` (pytest-xdist, whole files per worker) the
+workers start on them instead of ending on one of them while the other core idles."""
+
+
+def pytest_configure(config):
+    """Under pytest-xdist (``make test`` runs one worker per core) each worker computes with one
+    torch thread: two workers of two OpenMP threads each on two cores ran the CompenNet-heavy
+    non-square module 2.2× slower than one worker alone."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        import torch
+
+        torch.set_num_threads(1)
 
 
 @pytest.fixture(params=VARIANTS)
@@ -69,7 +86,8 @@ def _flush_jit():
 
 
 def pytest_collection_modifyitems(items):
-    """Run the doctests of ``sim/`` and ``compensation/`` under numpy's default print options.
+    """Put :data:`LONGEST_MODULES` first, and run the doctests of ``sim/`` and ``compensation/`` under
+    numpy's default print options.
 
     colour-science calls ``np.set_printoptions(legacy="1.13")`` when it is imported (by
     ``sim.camera``), which changes how arrays and numpy scalars print; whether it has been imported
@@ -79,6 +97,7 @@ def pytest_collection_modifyitems(items):
     import numpy as np
     from _pytest.doctest import DoctestItem
 
+    items.sort(key=lambda item: item.path.name not in LONGEST_MODULES)  # stable: the rest keep their order
     for item in items:
         if isinstance(item, DoctestItem):
             def runtest(run=item.runtest):
