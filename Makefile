@@ -21,7 +21,7 @@ PARALLEL := -n auto --dist loadfile
 test: venv llvm chromium
 	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q $(PARALLEL) --durations=15
 
-# The inner loop while editing (about 2 minutes on 2 cores): the suite without the tests marked slow.
+# The inner loop while editing (about 1 minute on 2 cores): the suite without the tests marked slow.
 test-fast: venv llvm
 	OMP_WAIT_POLICY=PASSIVE $(PY) -m pytest -q $(PARALLEL) -m "not slow" --durations=15
 
