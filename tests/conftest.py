@@ -11,7 +11,7 @@ from sim.variant import FALLBACK, choose_variant
 VARIANTS = sorted({choose_variant(), FALLBACK})
 
 LONGEST_MODULES = ("test_nonsquare.py", "test_demo.py")
-"""Test modules that take over a minute each on one core (measured 88 s and 85 s, the next 53 s):
+"""Test modules that take over a minute each (measured serially on 2 cores: 88 s and 85 s, the next 53 s):
 they are collected first, so that under ``make test`` (pytest-xdist, whole files per worker) the
 workers start on them instead of ending on one of them while the other core idles."""
 
