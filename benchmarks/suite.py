@@ -1,6 +1,6 @@
-"""Test-suite benchmark: wall and CPU time of ``make test`` and ``make test-fast`` run on one core
-against one pytest-xdist worker per core (whole test files per worker, as the Makefile runs them) —
-measured side by side in one run.
+"""Test-suite benchmark: wall and CPU time of ``make test`` and ``make test-fast`` run in one pytest
+process against one pytest-xdist worker per core (whole test files per worker, as the Makefile runs
+them) — measured side by side in one run.
 
 Each tier runs serially and in parallel, taking turns, in fresh pytest processes from the checkout
 (passive OpenMP waiting, as the Makefile); the table gives wall and CPU seconds (children's user +
