@@ -79,7 +79,7 @@ def main() -> None:
     print(f"{'tier':<7}{'mode':<10}{'wall s':>9}{'CPU s':>9}  outcome")
     for tier in tiers:
         walls: dict[str, list[float]] = {mode: [] for mode in MODES}
-        outcome: dict[str, dict[str, int]] = {}
+        first = None  # the passed and skipped counts of the tier's first run
         for _ in range(args.rounds):
             for mode, extra in MODES.items():
                 options = (TIERS[tier] + extra + (["-n", args.workers] if mode == "parallel" else [])
@@ -87,10 +87,10 @@ def main() -> None:
                 wall, cpu, summary = run_tier(options)
                 walls[mode].append(wall)
                 found = {k: v for k, v in counts(summary).items() if k in ("passed", "skipped")}
-                if outcome and found != next(iter(outcome.values())):
-                    raise SystemExit(f"tier {tier}: {mode} ran {found}, the other run "
-                                     f"{next(iter(outcome.values()))}")
-                outcome[mode] = found
+                if first is None:
+                    first = found
+                elif found != first:
+                    raise SystemExit(f"tier {tier}: {mode} ran {found}, the first run {first}")
                 print(f"{tier:<7}{mode:<10}{wall:>9.2f}{cpu:>9.2f}  {summary}", flush=True)
         serial, parallel = min(walls["serial"]), min(walls["parallel"])
         print(f"{tier:<7}parallel / serial wall (best of {args.rounds}): {parallel / serial:.2f}× "

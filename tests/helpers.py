@@ -1,12 +1,16 @@
 """Helpers shared by the test modules: the tiny setups the physics and end-to-end tests build on,
 as validated setups (:func:`tiny_setup`) or as setup files (:func:`tiny_toml`,
 :func:`tiny_setup_file`), a study whose renders all fail (:func:`failing_study_file`), ``mi.render`` ended by Ctrl-C
-(:func:`interrupted_render`), the options of the tiny rendered dataset (:data:`TINY_RENDER`), and
-the rows of the CSV files procam writes (:func:`csv_rows`)."""
+(:func:`interrupted_render`), the options of the tiny rendered dataset (:data:`TINY_RENDER`),
+the rows of the CSV files procam writes (:func:`csv_rows`), and a script of ``benchmarks/`` run in
+a child process (:func:`run_benchmark`)."""
 from __future__ import annotations
 
 import copy
 import csv
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import tomli_w
@@ -110,3 +114,15 @@ def refuse_renders(monkeypatch, suffix: str) -> None:
         return real(root, setup, *args, **kwargs)
 
     monkeypatch.setattr(jobs, "write_setup", refuse)
+
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+"""The checkout's ``benchmarks/`` folder."""
+
+
+def run_benchmark(script: str, *args: str) -> subprocess.CompletedProcess:
+    """``benchmarks/<script> args`` in a child process from the checkout (procam importable from it,
+    passive OpenMP waiting), its output captured as text."""
+    env = dict(os.environ, PYTHONPATH=str(BENCHMARKS.parent), OMP_WAIT_POLICY="PASSIVE")
+    return subprocess.run([sys.executable, str(BENCHMARKS / script), *args], capture_output=True,
+                          text=True, timeout=600, env=env, cwd=BENCHMARKS.parent)

@@ -3,24 +3,17 @@ serially and on pytest-xdist workers, both pass the same tests, the ratio printe
 the wall times printed, and a failing run stops it with pytest's summary, not exit 0."""
 from __future__ import annotations
 
-import os
 import re
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
+from helpers import BENCHMARKS, run_benchmark
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-ROOT = BENCHMARKS.parent
 SMALL = "tests/test_seeds.py"
 """A test file of three sub-second tests."""
 
 
-def suite(*args: str) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, str(BENCHMARKS / "suite.py"), *args], capture_output=True,
-                          text=True, timeout=300, env=env, cwd=ROOT)
+def suite(*args: str):
+    return run_benchmark("suite.py", *args)
 
 
 @pytest.mark.slow
@@ -51,11 +44,8 @@ def test_an_unknown_tier_is_named():
     assert proc.returncode == 2 and "unknown tier(s) nightly" in proc.stderr
 
 
-def test_counts_reads_the_summary_line():
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        from suite import counts
-    finally:
-        sys.path.remove(str(BENCHMARKS))
+def test_counts_reads_the_summary_line(monkeypatch):
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    from suite import counts
     assert counts("3 passed, 1 skipped, 2 warnings in 1.20s") == {"passed": 3, "skipped": 1, "warnings": 2}
     assert counts("1 failed, 2 passed in 0.5s (0:00:00)") == {"failed": 1, "passed": 2}

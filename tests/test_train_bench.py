@@ -5,30 +5,17 @@ from __future__ import annotations
 
 import gc
 import math
-import os
 import re
 import statistics
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 import torch
+from helpers import BENCHMARKS, run_benchmark
 
 from compensation.methods.compennet import CompenNet
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-ROOT = BENCHMARKS.parent
-
-
-def run(script: str, *args: str) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_WAIT_POLICY="PASSIVE")
-    return subprocess.run([sys.executable, str(BENCHMARKS / script), *args], capture_output=True,
-                          text=True, timeout=600, env=env, cwd=ROOT)
-
-
 def output(script: str, *args: str) -> str:
-    proc = run(script, *args)
+    proc = run_benchmark(script, *args)
     assert proc.returncode == 0, proc.stderr
     return proc.stdout
 
@@ -104,7 +91,7 @@ def test_pix2pix_benchmark_runs_every_variant():
 
 @pytest.mark.slow
 def test_a_failing_step_stops_the_benchmark_with_its_message():
-    proc = run("pix2pix.py", "--size", "16", "--rounds", "1")
+    proc = run_benchmark("pix2pix.py", "--size", "16", "--rounds", "1")
     assert proc.returncode == 1
     assert "benchmark step 'default layout' failed: ProcamError: 16x16 pixels" in proc.stderr
     assert "Traceback" not in proc.stderr
