@@ -120,9 +120,9 @@ BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 """The checkout's ``benchmarks/`` folder."""
 
 
-def run_benchmark(script: str, *args: str) -> subprocess.CompletedProcess:
-    """``benchmarks/<script> args`` in a child process from the checkout (procam importable from it,
-    passive OpenMP waiting), its output captured as text."""
+def run_benchmark(script: str, *args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """``benchmarks/<script> args`` in a child process (procam importable from the checkout, passive
+    OpenMP waiting), run in ``cwd`` (default: the checkout), its output captured as text."""
     env = dict(os.environ, PYTHONPATH=str(BENCHMARKS.parent), OMP_WAIT_POLICY="PASSIVE")
     return subprocess.run([sys.executable, str(BENCHMARKS / script), *args], capture_output=True,
-                          text=True, timeout=600, env=env, cwd=BENCHMARKS.parent)
+                          text=True, timeout=600, env=env, cwd=cwd or BENCHMARKS.parent)

@@ -6,14 +6,13 @@ import csv
 import importlib.util
 import json
 import math
-import os
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from helpers import BENCHMARKS, run_benchmark
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "effects.py"
+SCRIPT = BENCHMARKS / "effects.py"
 
 
 @pytest.fixture(scope="module")
@@ -125,14 +124,11 @@ def test_runs_made_at_other_settings_are_refused_by_name(effects, tmp_path):
 @pytest.mark.slow
 def test_a_folder_the_bench_refuses_is_named_without_traceback(tmp_path):
     (tmp_path / "notes.txt").write_text("mine")
-    proc = subprocess.run([sys.executable, str(SCRIPT), "--out", str(tmp_path), "--size", "16", "--methods", "tps",
-                           "--only", "effects_01"], capture_output=True, text=True,
-                          env={**os.environ, "PYTHONPATH": str(SCRIPT.parents[1])}, timeout=300)
+    proc = run_benchmark("effects.py", "--out", str(tmp_path), "--size", "16", "--methods", "tps",
+                         "--only", "effects_01")
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     assert proc.stderr.startswith(f"effects: {tmp_path}: holds notes.txt")
-    proc = subprocess.run([sys.executable, str(SCRIPT), "--out", str(tmp_path / "new"), "--keep",
-                           str(tmp_path / "none.csv")], capture_output=True, text=True,
-                          env={**os.environ, "PYTHONPATH": str(SCRIPT.parents[1])}, timeout=300)
+    proc = run_benchmark("effects.py", "--out", str(tmp_path / "new"), "--keep", str(tmp_path / "none.csv"))
     assert proc.returncode == 2 and f"--keep {tmp_path / 'none.csv'}: no such file" in proc.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 

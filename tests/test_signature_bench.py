@@ -4,16 +4,11 @@ from the benches' own result files, and a finished variant kept from its result 
 from __future__ import annotations
 
 import csv
-import os
 import statistics
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
-from helpers import tiny_toml
-
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import run_benchmark, tiny_toml
 
 
 def _rows(path: Path) -> list[dict]:
@@ -28,11 +23,9 @@ def test_signature_per_variant(tmp_path):
     suite.write_text('base = "base.toml"\n\n[[setup]]\nname = "a"\nsurface = { texture_seed = 1 }\n\n'
                      '[[setup]]\nname = "b"\nsurface = { texture_seed = 2 }\n')
     out = tmp_path / "out"
-    cmd = [sys.executable, str(ROOT / "benchmarks" / "signature.py"), "--out", str(out), "--suite", str(suite),
-           "--setups", "a,b", "--variants", "default,white_boost", "--methods", "tps,tps-textured",
-           "--profile", "quick", "--size", "16", "--n-train", "8", "--n-test", "3"]
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_WAIT_POLICY": "PASSIVE"}
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    args = ["--suite", str(suite), "--setups", "a,b", "--variants", "default,white_boost", "--methods",
+            "tps,tps-textured", "--profile", "quick", "--size", "16", "--n-train", "8", "--n-test", "3"]
+    proc = run_benchmark("signature.py", "--out", str(out), *args, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     # the variant's value reached the renderer, and only there
     for setup in ("a", "b"):
@@ -67,8 +60,7 @@ def test_signature_per_variant(tmp_path):
         (kept / variant).mkdir(parents=True)
         for name in ("study.json", "results.csv", "per_image.csv"):
             (kept / variant / name).write_bytes((out / variant / name).read_bytes())
-    proc = subprocess.run([*cmd[:3], str(kept), *cmd[4:]], capture_output=True, text=True,
-                          env=env, cwd=tmp_path, timeout=600)
+    proc = run_benchmark("signature.py", "--out", str(kept), *args, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     for variant in table:
         assert f"{variant}: finished in {kept / variant}, not run again" in proc.stdout
@@ -78,13 +70,9 @@ def test_signature_per_variant(tmp_path):
 
 @pytest.mark.slow
 def test_unknown_variant_or_setup_is_refused_by_name(tmp_path):
-    script = str(ROOT / "benchmarks" / "signature.py")
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([sys.executable, script, "--out", str(tmp_path), "--variants", "default,glow"],
-                          capture_output=True, text=True, env=env, timeout=300)
+    proc = run_benchmark("signature.py", "--out", str(tmp_path), "--variants", "default,glow")
     assert proc.returncode == 2 and "--variants: glow unknown; expected some of default, dynamic_lamp" in proc.stderr
-    proc = subprocess.run([sys.executable, script, "--out", str(tmp_path), "--setups", "light9_pos1_nowhere"],
-                          capture_output=True, text=True, env=env, timeout=300)
+    proc = run_benchmark("signature.py", "--out", str(tmp_path), "--setups", "light9_pos1_nowhere")
     assert proc.returncode == 2 and "--setups: light9_pos1_nowhere not in the suite paper" in proc.stderr
     assert not any(tmp_path.iterdir())  # nothing written
 
@@ -93,9 +81,8 @@ def test_unknown_variant_or_setup_is_refused_by_name(tmp_path):
 def test_a_variant_folder_of_another_bench_is_refused_without_traceback(tmp_path):
     (tmp_path / "default").mkdir()
     (tmp_path / "default" / "study.json").write_text('{"name": "other", "kind": "bench"}')
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "signature.py"), "--out", str(tmp_path),
-                           "--variants", "default", "--setups", "light1_pos1_squares"],
-                          capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=300)
+    proc = run_benchmark("signature.py", "--out", str(tmp_path), "--variants", "default", "--setups",
+                         "light1_pos1_squares")
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     assert "signature: " in proc.stderr and "holds the bench 'other'" in proc.stderr
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["default", "study.json"]
