@@ -50,6 +50,8 @@ def albedo_texture(setup: Setup) -> np.ndarray:
         tex = images.surface_texture(s.texture, res, s.texture_seed)
     else:
         tex = images.load_texture_file(s.texture, res)
+    if s.ink_density != 1.0:
+        tex = np.power(tex, np.float32(s.ink_density), dtype=np.float32)
     albedo = tex * np.float32(s.albedo_scale) * np.asarray(s.tint, np.float32)
     return np.clip(albedo, 0.0, 1.0).astype(np.float32)
 

@@ -78,6 +78,31 @@ def test_constant_ambient_gives_albedo_times_radiance():
                                rtol=1e-5)
 
 
+def test_ink_density_scales_the_prints_optical_density():
+    """``surface.ink_density`` d scales each texel's optical density: albedo = scale · tex^d, so
+    half the ink halves -log10 of the relative reflectance, no ink leaves the bare sheet, and a
+    lighter print is brighter and less saturated where the room light renders it."""
+    from sim.scene import albedo_texture
+
+    surface = {"texture": "curves", "texture_seed": 3, "albedo_scale": 0.8}
+    full, half, none = (albedo_texture(tiny_setup(surface={**surface, "ink_density": d}))
+                        for d in (1.0, 0.5, 0.0))
+    dense = full > 1e-3
+    np.testing.assert_allclose(-np.log10(half[dense] / 0.8), -0.5 * np.log10(full[dense] / 0.8),
+                               rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(none, 0.8, rtol=1e-6)
+
+    def saturation(img):
+        return float(np.mean((img.max(-1) - img.min(-1)) / np.maximum(img.max(-1), 1e-6)))
+
+    assert saturation(half) < saturation(full) - 0.05
+    ambient = {"radiance": [0.1, 0.1, 0.1]}
+    lit = [Renderer(tiny_setup(surface={**surface, "ink_density": d}, ambient=ambient,
+                               render={"ambient_spp": 1})).ambient_radiance() for d in (1.0, 0.5)]
+    on = lit[0].sum(-1) > 0
+    assert lit[1][on].mean() > 1.2 * lit[0][on].mean() and np.all(lit[1][on] >= lit[0][on] - 1e-6)
+
+
 def test_corner_path_tracing_adds_interreflection():
     """In a 90° corner each wing lights the other: depth 3 is brighter than direct light."""
     corner = {"geometry": "corner", "size": [0.6, 1.0]}

@@ -223,6 +223,8 @@ BAD = {
                      ["projector.mixing", "expected a 3x3 matrix", ">= 0"]),
     "out of range": ('name = "b"\n[surface]\nalbedo_scale = 1.5\n',
                      ["surface.albedo_scale = 1.5", "expected a number in (0, 1]"]),
+    "ink density": ('name = "b"\n[surface]\nink_density = 2.5\n',
+                    ["surface.ink_density = 2.5", "expected a number in [0, 2] (relative optical density)"]),
     "out of range tint": ('name = "b"\n[surface]\ntint = [1.0, -0.1, 1.0]\n',
                           ["surface.tint", "each in [0, 1]"]),
     "unknown choice": ('name = "b"\n[surface]\ngeometry = "sphere"\n',
@@ -370,8 +372,8 @@ def test_a_surface_key_is_refused_for_a_surface_that_does_not_take_it(tmp_path):
         load_setup(path)
     assert str(err.value).startswith(
         f'{path}: surface.corner_angle = 60.0: not a key of surface.geometry = "plane" (only of '
-        '"corner"); valid keys of [surface]: albedo_scale, bow, geometry, material, relief, '
-        'relief_length, relief_seed, roughness, size, ')
+        '"corner"); valid keys of [surface]: albedo_scale, bow, geometry, ink_density, material, '
+        'relief, relief_length, relief_seed, roughness, size, ')
     assert "corner_angle" not in str(err.value).split("valid keys")[1]
     corner = parse_setup({"name": "c", "surface": {"geometry": "corner", "corner_angle": 60}})
     assert corner.surface.shape.corner_angle == 60.0 and type(corner.surface.shape.corner_angle) is float
@@ -382,8 +384,8 @@ def test_a_surface_key_is_refused_for_a_surface_that_does_not_take_it(tmp_path):
 
 def test_unknown_surface_key_lists_every_surface_key():
     with pytest.raises(SetupError, match=r"surface\.angle: unknown key; valid keys of \[surface\]: "
-                                         r"albedo_scale, bow, corner_angle, geometry, material, "
-                                         r"relief, relief_length, relief_seed, "):
+                                         r"albedo_scale, bow, corner_angle, geometry, ink_density, "
+                                         r"material, relief, relief_length, relief_seed, "):
         parse_setup({"name": "c", "surface": {"angle": 60}})
 
 

@@ -54,6 +54,12 @@ class SurfaceConfig:
     """Linear albedo multiplier, in (0, 1]."""
     tint: tuple[float, float, float] = vector((1.0, 1.0, 1.0), UNIT, "(linear RGB)")
     """Linear RGB albedo multiplier per channel, each in [0, 1]."""
+    ink_density: float = number(1.0, Range(0, 2), "(relative optical density)")
+    """Optical density of the print's inks relative to the texture as generated, 0..2. The linear
+    albedo is ``albedo_scale * tint * texture ** ink_density``: an ink layer's optical density
+    (minus log10 of its reflectance) grows with the ink laid down, so 1 keeps the texture, below 1
+    prints it lighter and less saturated (0: the bare sheet, ``albedo_scale * tint`` everywhere),
+    above 1 darker and more saturated."""
     material: str = choice("diffuse", ("diffuse", "roughplastic"))
     """``"diffuse"`` or ``"roughplastic"`` (semi-gloss)."""
     roughness: float = number(0.1, Range(0, 1, lo_open=True), "(GGX alpha)")
