@@ -3,6 +3,8 @@ known model, and the optimum itself against the feedback oracle and fitted metho
 model."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -113,7 +115,7 @@ def _dataset(tmp_path, name: str, n_test: int = 4, **sections):
 
 
 @pytest.mark.slow
-def test_on_a_white_surface_without_room_light_the_optimum_is_exact(tmp_path):
+def test_on_a_white_surface_without_room_light_the_optimum_is_exact(tmp_path, capsys):
     """Albedo 1, no ambient light, the camera on the projector's axis: every target in reach is
     shown to within the 8-bit steps of projector and camera."""
     _, data, sim = _dataset(tmp_path, "white", surface={"texture": "uniform", "albedo_scale": 1.0},
@@ -121,7 +123,10 @@ def test_on_a_white_surface_without_room_light_the_optimum_is_exact(tmp_path):
                                     "position": [0.0, 0.0, 1.0], "fov": 30.0},
                             projector={"black_level": 0.0, "resolution": [32, 32]})
     # in reach: between the captures of plain black and plain white (global: 1 % may fall outside)
-    scores, frames = optimum(data, sim, policy=TargetPolicy("global", out_of_reach=0.0))
+    scores, frames = optimum(data, sim, policy=TargetPolicy("global", out_of_reach=0.0), progress=True)
+    # its progress counts evaluations of the test set in tenths, not in float noise
+    last = capsys.readouterr().err.split("\r")[-1]
+    assert re.search(r"exact optimum: .*\| \d+\.\d/\d+ \[", last), last
     assert scores["noise_free"]["psnr"] >= 40.0
     assert scores["psnr"] >= 38.0  # the same frames through the noisy camera
     assert frames.min() >= 0 and frames.max() <= 1

@@ -331,8 +331,10 @@ def optimum(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None
     y, record = closed_loop_target(data, data.test.frames if desired is None else desired, policy)
     noise_free = sim.noise_free()
     n = len(y)
+    # the bar counts evaluations of the whole test set, in fractions as batches of images finish
     bar = tqdm(total=evaluation_count(len(starts), rounds, spatial_rounds), desc=f"{data.name} · exact optimum",
-               unit="eval", disable=not progress)
+               unit="eval", disable=not progress,
+               bar_format="{l_bar}{bar}| {n:.1f}/{total_fmt} [{elapsed}<{remaining}, {rate_fmt}]")
     counts = torch.zeros(n)
 
     def model(frames: torch.Tensor, first: int = 0) -> torch.Tensor:
