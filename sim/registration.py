@@ -143,7 +143,19 @@ def warp(image: np.ndarray, wmap: WarpMap) -> np.ndarray:
     return out
 
 
-def checkerboard(size: tuple[int, int], squares: tuple[int, int] = (9, 7)) -> tuple[np.ndarray, np.ndarray]:
+SQUARES = (9, 6)
+"""Squares of the registration checkerboard (columns, rows). One count odd and the other even, so
+that the pattern turned by 180° swaps its black and white squares: the corner order OpenCV finds
+(which may start at either end) is then told apart by the capture itself. With both odd (e.g.
+9 × 7) the turned pattern is the same pattern, and a camera that sees the board upside down
+registers every capture turned by 180°."""
+MAX_PATTERN_MISMATCH = 0.25
+"""Largest mean absolute difference (as a fraction of white) between the pattern and its capture
+warped by the fitted homography for the fit to be accepted; a correct fit differs only along the
+squares' edges (a few per cent), a wrong corner order or a false detection by about half."""
+
+
+def checkerboard(size: tuple[int, int], squares: tuple[int, int] = SQUARES) -> tuple[np.ndarray, np.ndarray]:
     """A checkerboard frame with a white margin of one square, and its inner corners.
 
     The square edges lie on pixel boundaries (the even split of the frame into ``squares + 2``
@@ -173,14 +185,16 @@ def checkerboard(size: tuple[int, int], squares: tuple[int, int] = (9, 7)) -> tu
 
 
 def estimate_homography(capture: Callable[[np.ndarray], np.ndarray], size: tuple[int, int],
-                        squares: tuple[int, int] = (9, 7), jitter: float = 0.0,
+                        squares: tuple[int, int] = SQUARES, jitter: float = 0.0,
                         rng: np.random.Generator | None = None) -> np.ndarray | None:
     """Estimate the camera → canonical homography as a real system would.
 
     Three frames are projected (checkerboard, white, black); the checkerboard capture is
     normalised by the other two, which removes the surface texture and the ambient light, then
-    OpenCV finds the inner corners. The corner order is ambiguous for a symmetric search, so both
-    orders are tried and the one whose warped capture matches the pattern is kept.
+    OpenCV finds the inner corners. Their order may start at either end of the grid, so both
+    orders are tried and the one whose warped capture matches the pattern is kept (the pattern is
+    not symmetric under a turn by 180°: :data:`SQUARES`); a fit whose warped capture still differs
+    from the pattern by more than :data:`MAX_PATTERN_MISMATCH` counts as not found.
 
     Parameters
     ----------
@@ -201,7 +215,7 @@ def estimate_homography(capture: Callable[[np.ndarray], np.ndarray], size: tuple
     numpy.ndarray or None
         3×3 homography mapping camera pixel coordinates to canonical ones (both with pixel centres
         at integer + 0.5), normalised so that its last entry is 1, or None when the corners were
-        not found.
+        not found (or no order of them fits the pattern).
     """
     frame, corners = checkerboard(size, squares)
     w, h = size
@@ -231,7 +245,9 @@ def estimate_homography(capture: Callable[[np.ndarray], np.ndarray], size: tuple
         err = np.mean(np.abs(seen.astype(np.float32) - frame[..., 0]))
         if err < best_err:
             best, best_order, best_err = hom, order, err
-    if best is not None and jitter > 0:
+    if best is None or best_err > MAX_PATTERN_MISMATCH * 255:
+        return None
+    if jitter > 0:
         # displace each detected corner by the jitter as seen in the canonical view, and refit
         seen_at = cv2.perspectiveTransform(best_order[None].astype(np.float64), best)[0]
         seen_at += rng.normal(0.0, jitter, seen_at.shape)
