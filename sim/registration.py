@@ -147,8 +147,8 @@ SQUARES = (9, 6)
 """Squares of the registration checkerboard (columns, rows). One count odd and the other even, so
 that the pattern turned by 180° swaps its black and white squares: the corner order OpenCV finds
 (which may start at either end) is then told apart by the capture itself. With both odd (e.g.
-9 × 7) the turned pattern is the same pattern, and a camera that sees the board upside down
-registers every capture turned by 180°."""
+9 × 7) the turned pattern is the same pattern: both orders fit it equally well, and a dataset
+could be registered turned by 180°."""
 MAX_PATTERN_MISMATCH = 0.25
 """Largest mean absolute difference (as a fraction of white) between the pattern and its capture
 warped by the fitted homography for the fit to be accepted; a correct fit differs only along the
