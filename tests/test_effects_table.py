@@ -168,6 +168,19 @@ def test_the_script_refuses_kept_runs_before_running_anything(effects, tmp_path,
     assert ran == [] and not out.exists()
 
 
+def test_a_setup_that_does_not_load_is_named_without_traceback(effects, tmp_path, monkeypatch, capsys):
+    def broken():
+        raise effects.ProcamError("default.toml: surface.ink: unknown key")
+
+    monkeypatch.setattr(effects, "setups", broken)
+    monkeypatch.setattr(sys, "argv", ["effects.py", "--out", str(tmp_path / "out"), "--size", "16"])
+    with pytest.raises(SystemExit) as exit_:
+        effects.main()
+    assert exit_.value.code == 1
+    assert capsys.readouterr().err == "effects: default.toml: surface.ink: unknown key\n"
+    assert not (tmp_path / "out").exists()
+
+
 def _images(setup: str, method: str, psnrs) -> list[dict]:
     return [{"setup": setup, "method": method, "image": i, "psnr": v, "cl_psnr": "", "table": "1",
              "n_train": 125} for i, v in enumerate(psnrs, start=1)]
