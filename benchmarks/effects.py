@@ -365,15 +365,12 @@ def main() -> None:
     try:
         for path in (args.keep, args.out / "effects_runs.csv"):
             check_kept(path, settings)
+        suite = setups()
     except ProcamError as exc:
         ap.exit(1, f"effects: {exc}\n")
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     if not set(methods) <= set(METHODS):
         ap.error(f"--methods {args.methods}: expected some of {', '.join(METHODS)}")
-    try:
-        suite = setups()
-    except ProcamError as exc:
-        ap.exit(1, f"effects: {exc}\n")
     if args.only:
         names = set(args.only.split(","))
         if not base_kept(args.out, args.keep, methods):
