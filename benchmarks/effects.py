@@ -10,7 +10,10 @@ Every setup is rendered and benchmarked by ``procam bench`` (Table 1 jobs at one
 closed loop on); this script then writes, per method, the change in dB against the base, surrogate
 (π†(x̃) against x) and closed loop (the compensation projected back through the setup)::
 
-    .venv/bin/python benchmarks/effects.py --out OUT [--size 64 --n-train 125 --n-test 50 --iters 300]
+    .venv/bin/python benchmarks/effects.py --out OUT [--setup FILE] [--size 64 --n-train 125 --n-test 50 --iters 300]
+
+``--setup`` makes the table of another setup file than ``scenes/default.toml`` (its effects turned
+off and on as the default's are); the resolved setup is kept as ``OUT/effects_setup.toml``.
 
 Writes ``OUT/effects.md``, ``OUT/effects.csv`` and, where runs kept per-image scores
 (``OUT/effects_per_image.csv``), the paired differences of CompenNet, TPS textured and TPS per row
@@ -19,7 +22,8 @@ Writes ``OUT/effects.md``, ``OUT/effects.csv`` and, where runs kept per-image sc
 ``--methods`` runs some methods only (e.g. CompenNet on a few rows, ``--only``), and the table
 keeps the runs of earlier calls (``OUT/effects_runs.csv``, and with ``--keep CSV`` those of calls
 into another folder, such as the runs kept in ``benchmarks/results/effects/256/``; each run keeps
-the size, pair counts and CompenNet budget it was made at, and runs made at others are refused).
+the size, pair counts and CompenNet budget it was made at, and runs made at others, or from
+another setup than the ``effects_setup.toml`` beside them, are refused).
 """
 from __future__ import annotations
 
@@ -27,6 +31,7 @@ import argparse
 import csv
 import dataclasses
 import math
+import tomllib
 from pathlib import Path
 
 from compensation.experiments.bench import BenchConfig, run_bench
@@ -37,6 +42,7 @@ from sim.errors import ProcamError
 from sim.io import read_json, write_text
 from sim.layout import META_FILE
 from sim.setup import load_setup, scene_path
+from sim.setup.toml import dump_setup
 
 METHODS = ("tps", "tps-textured", "nayar", "compennet")
 CONTENT = {  # row name -> values: content-dependent processing, off in the default setup; the
@@ -79,6 +85,8 @@ OFF = {("surface", "relief"): 0.0, ("projector", "distortion_k1"): 0.0, ("projec
 PAIRS = (("compennet", "tps-textured"), ("compennet", "tps"), ("tps-textured", "tps"))
 """Paired comparisons per row, image by image on the surrogate benchmark: CompenNet against each
 TPS, and TPS textured − TPS (the paper's signature)."""
+SETUP_FILE = "effects_setup.toml"
+"""The resolved setup whose effects a folder's runs turn off and on, beside its ``effects_runs.csv``."""
 IMAGE_COLUMNS = ("setup", "method", "image", "psnr", "cl_psnr")
 """Columns of ``effects_per_image.csv``."""
 NETWORK_OPTIONS = ("iters", "patch", "batch")
@@ -104,10 +112,11 @@ def _value(setup, section: str, key: str):
     return getattr(part.shape if section == "surface" and not hasattr(part, key) else part, key)
 
 
-def setups() -> list:
+def setups(default=None) -> list:
     """The base, one setup per effect (:data:`EFFECTS`, then :data:`CONTENT`), the default setup
-    (all its effects) and the default setup with every content-dependent effect, in table order."""
-    default = load_setup(scene_path("default"))
+    (all its effects) and the default setup with every content-dependent effect, in table order.
+    ``default``: the setup whose effects the rows turn off and on (``scenes/default.toml`` if none)."""
+    default = default or load_setup(scene_path("default"))
     base = with_values(default, "effects_base", OFF)
     out = [base]
     rows = [{k: _value(default, *k) for k in keys} for keys in EFFECTS.values()] + list(CONTENT.values())
@@ -184,6 +193,40 @@ def check_kept(path: Path | None, settings) -> None:
         if differ:
             raise ProcamError(f"{path}: run {r['setup']}/{r['method']} was made at {', '.join(differ)}: "
                               "keep runs of the same settings, or write to another --out")
+
+
+def _dotted(table: dict) -> dict:
+    """A setup's TOML tables as ``{"section.key": value}``.
+
+    >>> _dotted({"name": "a", "surface": {"relief": 2.0}})
+    {'name': 'a', 'surface.relief': 2.0}
+    """
+    return {f"{s}.{k}" if isinstance(t, dict) else s: v for s, t in table.items()
+            for k, v in (t.items() if isinstance(t, dict) else [(s, t)])}
+
+
+def check_setup(path: Path | None, setup) -> None:
+    """Refuse an ``effects_runs.csv`` holding runs made from another setup than ``setup``, the one
+    whose effects this call turns off and on: the :data:`SETUP_FILE` beside it must read back to
+    the same resolved setup.
+
+    Raises
+    ------
+    ProcamError
+        Naming the file, and each key whose value differs, with its value there and in this call.
+    """
+    if path is None or not _rows(path):
+        return
+    kept = path.with_name(SETUP_FILE)
+    if not kept.is_file():
+        raise ProcamError(f"{path}: no {SETUP_FILE} beside it records the setup its runs were made from; "
+                          "keep only runs written by this script")
+    there, here = (_dotted(tomllib.loads(text)) for text in (kept.read_text(), dump_setup(setup)))
+    differ = [f"{k} = {there.get(k, 'unset')} (this call: {here.get(k, 'unset')})"
+              for k in dict.fromkeys([*there, *here]) if k != "name" and there.get(k) != here.get(k)]
+    if differ:
+        raise ProcamError(f"{path}: its runs were made from another setup ({kept}): {'; '.join(differ)}; "
+                          "keep runs of the same setup (--setup), or write to another --out")
 
 
 def merge_runs(out: Path, settings, keep: Path | None = None) -> list[dict]:
@@ -336,6 +379,8 @@ def write(out: Path, lines: list[dict], how: str, pairs: list[dict] = ()) -> Non
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, type=Path)
+    ap.add_argument("--setup", type=Path, default=None,
+                    help="the setup file whose effects the rows turn off and on (default: scenes/default.toml)")
     ap.add_argument("--size", type=int, default=64, help="canonical pixels")
     ap.add_argument("--n-train", type=int, default=125)
     ap.add_argument("--n-test", type=int, default=50)
@@ -363,9 +408,11 @@ def main() -> None:
     def settings(method: str) -> dict[str, str]:
         return made_at(method, args.size, args.n_train, args.n_test, overrides)
     try:
+        default = load_setup(args.setup or scene_path("default"))
         for path in (args.keep, args.out / "effects_runs.csv"):
             check_kept(path, settings)
-        suite = setups()
+            check_setup(path, default)
+        suite = setups(default)
     except ProcamError as exc:
         ap.exit(1, f"effects: {exc}\n")
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
@@ -383,7 +430,9 @@ def main() -> None:
         run_bench(suite, args.out, cfg)
     except ProcamError as exc:
         ap.exit(1, f"effects: {exc}\n")
-    how = (f"`python benchmarks/effects.py --out {args.out} --size {args.size} --n-train {args.n_train} "
+    write_text(args.out / SETUP_FILE, dump_setup(default))
+    how = (f"`python benchmarks/effects.py --out {args.out}" + (f" --setup {args.setup}" if args.setup else "")
+           + f" --size {args.size} --n-train {args.n_train} "
            f"--n-test {args.n_test}" + "".join(f" --{k} {v}" for k, v in overrides.items())
            + (" --surrogate-only" if args.surrogate_only else "") + "`: "
            f"{args.size}² canonical, {args.n_train} training / {args.n_test} test pairs, quick profile"

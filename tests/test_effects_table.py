@@ -169,16 +169,47 @@ def test_the_script_refuses_kept_runs_before_running_anything(effects, tmp_path,
 
 
 def test_a_setup_that_does_not_load_is_named_without_traceback(effects, tmp_path, monkeypatch, capsys):
-    def broken():
-        raise effects.ProcamError("default.toml: surface.ink: unknown key")
-
-    monkeypatch.setattr(effects, "setups", broken)
-    monkeypatch.setattr(sys, "argv", ["effects.py", "--out", str(tmp_path / "out"), "--size", "16"])
+    bad = tmp_path / "mine.toml"
+    bad.write_text('name = "mine"\n[surface]\nink = 0.5\n')
+    monkeypatch.setattr(sys, "argv", ["effects.py", "--out", str(tmp_path / "out"), "--size", "16",
+                                      "--setup", str(bad)])
     with pytest.raises(SystemExit) as exit_:
         effects.main()
-    assert exit_.value.code == 1
-    assert capsys.readouterr().err == "effects: default.toml: surface.ink: unknown key\n"
-    assert not (tmp_path / "out").exists()
+    err = capsys.readouterr().err
+    assert exit_.value.code == 1 and err.startswith(f"effects: {bad}: ") and "surface.ink" in err, err
+    assert "Traceback" not in err and not (tmp_path / "out").exists()
+
+
+def test_runs_are_kept_only_beside_the_setup_they_were_made_from(effects, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "out"
+    ran = []
+    monkeypatch.setattr(effects, "run_bench", lambda suite, *a: ran.append([s.name for s in suite]))
+    lighter = tmp_path / "lighter.toml"  # the default setup, printed lighter
+    text = effects.scene_path("default").read_text()
+    lighter.write_text(text.replace("ink_density = 0.75", "ink_density = 0.5"))
+    assert lighter.read_text() != text
+    argv = ["effects.py", "--out", str(out), "--size", "16", "--n-test", "4", "--methods", "tps", "--only", "effects_05"]
+    monkeypatch.setattr(sys, "argv", argv + ["--setup", str(lighter)])
+    effects.main()
+    capsys.readouterr()
+    assert ran == [["effects_base", "effects_05"]]
+    kept = effects.load_setup(lighter)
+    assert effects.load_setup(out / effects.SETUP_FILE) == kept  # the resolved setup, beside the runs
+    base = [s for s in effects.setups(kept) if s.name == "effects_base"][0]
+    assert base.surface.ink_density == 0.5 and base.surface.shape.relief == 0.0  # its print, effects off
+    _write_results(out / "effects_runs.csv", [_kept(effects, "effects_05", "tps", 25.0)])
+    effects.check_setup(out / "effects_runs.csv", kept)
+    monkeypatch.setattr(sys, "argv", argv)  # the default setup: the folder's runs are not its
+    with pytest.raises(SystemExit) as exit_:
+        effects.main()
+    err = capsys.readouterr().err
+    assert exit_.value.code == 1 and err.startswith(f"effects: {out / 'effects_runs.csv'}: its runs were made "
+                                                     "from another setup")
+    assert "surface.ink_density = 0.5 (this call: 0.75)" in err and "name" not in err.split("):")[1]
+    assert len(ran) == 1
+    (out / effects.SETUP_FILE).unlink()  # runs without a record of their setup
+    with pytest.raises(effects.ProcamError, match=f"no {effects.SETUP_FILE} beside it"):
+        effects.check_setup(out / "effects_runs.csv", kept)
 
 
 def _images(setup: str, method: str, psnrs) -> list[dict]:
