@@ -17,21 +17,19 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from compensation.data import load_setup_data
-from compensation.experiments.closed_loop import (closed_loop, closed_loop_target, iterative_refinement,
-                                                 reachable_mask, reachable_overlay, simulator_for,
-                                                 uncompensated, write_captures)
-from compensation.experiments.optimum import optimum
+from compensation.data import load_setup_data, to_tensor
+from compensation.experiments.closed_loop import (CAPTURES_DIR, N_CAPTURES, closed_loop_target, reachable_mask,
+                                                 reachable_overlay, simulator_for, uncompensated)
 from compensation.experiments.targets import TargetPolicy
 from compensation.reports.report import build_report
-from compensation.experiments.jobs import (bound_cells, check_study_folder, reusable, target_cells,
-                                          write_results, write_study_record)
+from compensation.experiments.jobs import (BaselineJob, FitJob, baselines, bound_cells, check_study_folder,
+                                          fit, target_cells, write_results, write_study_record)
 from compensation.methods import applicable, make_config
 from compensation.training.config import PROFILES
-from compensation.experiments.runs import SCORES, load_run, train_run
+from compensation.experiments.runs import SCORES
 from sim.dataset import FrameSpec, write_setup
-from sim.io import write_json, write_png
-from sim.layout import SETUP_FILE
+from sim.io import read_png, write_json, write_png
+from sim.layout import SETUP_FILE, image_name
 from sim.setup import load_setup, scene_path
 
 PROFILE = "quick"
@@ -40,7 +38,8 @@ ORACLE_ITERATIONS = 4
 """Feedback rounds of the demo's oracle row. On the default setup at the quick profile its
 closed-loop PSNR is 12.51 dB after 4 rounds and 12.52 after 8 (the reachable pixels: 29.4 and
 30.0 dB); each round is 100 captures."""
-N_FIGURE = 4
+N_FIGURE = N_CAPTURES
+"""Test images in the figure: the first, whose closed-loop captures every run keeps."""
 
 
 def _row(name: str, scores: dict) -> str:
@@ -124,13 +123,14 @@ def _policy_line(record: dict) -> str:
 
 
 def run_demo(out: Path, progress: bool = True, target: TargetPolicy = TargetPolicy(), **overrides) -> dict:
-    """Run the demo into ``out`` (resumable: a finished dataset or run is reused).
+    """Run the demo into ``out`` (resumable: a finished dataset, run, closed loop or set of
+    baselines, i.e. uncompensated, oracle and optimum, is reused where nothing it depends on changed).
 
     Parameters
     ----------
     out : path-like
-        Output folder: ``data/``, ``runs/`` (each with ``closed_loop/`` captures), ``demo.png``,
-        ``demo.json``, ``study.json``, ``results.csv`` and ``report.html`` go there.
+        Output folder: ``data/``, ``runs/`` (each with ``closed_loop/`` captures), ``baselines/``,
+        ``demo.png``, ``demo.json``, ``study.json``, ``results.csv`` and ``report.html`` go there.
     progress : bool
         Show progress bars.
     target : TargetPolicy
@@ -163,33 +163,33 @@ def run_demo(out: Path, progress: bool = True, target: TargetPolicy = TargetPoli
     y = data.test.frames
     lines = [f"| {'method':<40} |  PSNR  |  RMSE  |  SSIM  |   ΔE   | PSNR reachable |",
              f"|{'-' * 42}|--------|--------|--------|--------|----------------|"]
-    y_target, _ = closed_loop_target(data, y[:N_FIGURE], target)
+    y_target = closed_loop_target(data, y, target)[0][:N_FIGURE]  # those the closed loop scores against
     mask = reachable_mask(data, y_target)
-    unc, as_is = uncompensated(data, sim, policy=target)
-    results = {"uncompensated": unc}
-    lines.append(_row("uncompensated (y' projected as is)", unc))
-    captures, rows = {}, []
+    _, as_is = uncompensated(data, sim, policy=target)
+    captures, rows, fitted = {}, [], {}
     for name in METHODS:
         run_dir = out / "runs" / f"default-{name}"
         train_cfg = make_config(PROFILE, name, **applicable(name, overrides))
-        metrics = reusable(run_dir, train_cfg, setup_dir)  # a run with other options is retrained
-        if metrics is None:
-            metrics = train_run(setup_dir, train_cfg, run_dir, progress, overwrite=True)
-        method, config = load_run(run_dir)
-        closed, captured = closed_loop(method, data, sim, return_captures=True, policy=target)
-        write_captures(run_dir, captured)
-        captures[name] = captured[:N_FIGURE]
+        # a run of other options is trained again, one scored under another target policy scored again
+        metrics = fit(FitJob(setup_dir, train_cfg, run_dir, progress=progress, target=target))["metrics"]
+        fitted[name] = metrics
+        captures[name] = to_tensor(np.stack([read_png(run_dir / CAPTURES_DIR / image_name(i))
+                                             for i in range(1, len(y_target) + 1)]))
+        rows.append({"method": name, "n_train": prof["n_train"], "seed": train_cfg.seed,
+                     "run": f"runs/{run_dir.name}", **_scores(metrics, metrics["closed_loop"])})
+    kept = baselines(BaselineJob(setup_dir, prof["n_test"], record=out / "baselines" / f"{setup.name}.json",
+                                 target=target, oracle_rounds=(ORACLE_ITERATIONS,), progress=progress))
+    unc = kept["uncompensated"]["closed_loop"]
+    results = {"uncompensated": unc}
+    lines.append(_row("uncompensated (y' projected as is)", unc))
+    for name, metrics in fitted.items():
         results[name] = {"surrogate": {k: metrics[k] for k in SCORES},
-                         "closed_loop": closed, "train_seconds": metrics["train_seconds"]}
-        rows.append({"method": name, "n_train": prof["n_train"], "seed": config["train"]["seed"],
-                     "run": f"runs/{run_dir.name}", **_scores(metrics, closed)})
+                         "closed_loop": metrics["closed_loop"], "train_seconds": metrics["train_seconds"]}
         lines.append(_row(f"{name}: surrogate π†(x̃) vs x", metrics))
-        lines.append(_row(f"{name}: closed loop, capture vs y'", closed))
-    results["oracle"], frames = iterative_refinement(data, sim, report=(ORACLE_ITERATIONS,), policy=target,
-                                                     return_frames=True)
+        lines.append(_row(f"{name}: closed loop, capture vs y'", metrics["closed_loop"]))
+    results["oracle"], results["optimum"] = kept["oracle"], kept["optimum"]
     lines.append(_row(f"oracle: feedback, {ORACLE_ITERATIONS} it. ({ORACLE_ITERATIONS + 1} projections)",
                       results["oracle"][-1]))
-    results["optimum"], _ = optimum(data, sim, policy=target, starts=(frames,), progress=progress)
     lines.append(_row(f"exact optimum ({results['optimum']['evaluations']:g} noise-free eval.)",
                       results["optimum"]))
     write_png(out / "demo.png", figure(data.surface, as_is[:N_FIGURE], captures, y_target, mask))

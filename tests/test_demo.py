@@ -73,9 +73,14 @@ def test_demo_tiny(tmp_path, capsys):
     grid = iio.imread(tmp_path / "demo.png")
     assert grid.ndim == 3 and grid.shape[2] == 3 and grid.shape[1] > grid.shape[0]  # 6 columns × 4 rows
     # resumable: a second run reuses the dataset and the runs and gives the same numbers
-    stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / "runs").rglob("metrics.json")}
+    def stamps(pattern):
+        return {p: p.stat().st_mtime_ns for p in tmp_path.rglob(pattern)}
+
+    trained, kept = stamps("loss.csv") | stamps("config.json"), stamps("baselines/*.json")
+    assert len(kept) == 1 and len(trained) >= len(METHODS)
     again = run_demo(tmp_path, progress=False, **SMALL)
-    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps and len(stamps) == len(METHODS)
+    assert stamps("loss.csv") | stamps("config.json") == trained  # trained once
+    assert stamps("baselines/*.json") != kept  # the oracle and the optimum scored again under the new target
     for name in METHODS:
         assert again[name]["surrogate"] == results[name]["surrogate"]
         # the second run took the default target policy: scored again against y', not reused
@@ -92,3 +97,10 @@ def test_demo_tiny(tmp_path, capsys):
     used = target["out_of_reach_used"]
     assert 0 <= used < 1 and (used <= 0.01 or target["a"] == pytest.approx(1 / 255, rel=1e-3))
     assert all(float(r["target_out_of_reach_used"]) == pytest.approx(used, rel=1e-5) for r in rows)
+
+    # unchanged, a third run reuses everything: no training, no closed loop, no oracle, no optimum
+    finished = stamps("metrics.json") | stamps("baselines/*.json") | stamps("closed_loop/*.png")
+    assert len(finished) == len(METHODS) * (1 + N_FIGURE) + 1
+    third = run_demo(tmp_path, progress=False, **SMALL)
+    assert stamps("metrics.json") | stamps("baselines/*.json") | stamps("closed_loop/*.png") == finished
+    assert third == again

@@ -258,10 +258,15 @@ class BaselineJob:
         Write ``masks/<setup>.png``: the first test images with their physically unreachable
         pixels tinted magenta (closed loop only).
     record : Path or None
-        A JSON file keeping the result: reused while the dataset, ``n_test``, the target policy
-        and the procam version are the same.
+        A JSON file keeping the result: reused while the dataset, ``n_test``, the target policy,
+        the oracle's rounds and the procam version are the same.
     target : TargetPolicy
         The target policy of the closed loop.
+    oracle_rounds : tuple of int
+        The feedback rounds after which the oracle is scored (one row each); the exact optimum
+        starts from the frames of the last.
+    progress : bool
+        Show the exact optimum's progress bar.
     """
 
     setup_dir: Path
@@ -270,6 +275,8 @@ class BaselineJob:
     masks: Path | None = None
     record: Path | None = None
     target: TargetPolicy = TargetPolicy()
+    oracle_rounds: tuple[int, ...] = (1, 2, 4, 8)
+    progress: bool = False
 
 
 def _baseline_key(job: BaselineJob, closed: bool) -> dict:
@@ -278,7 +285,8 @@ def _baseline_key(job: BaselineJob, closed: bool) -> dict:
     return {"dataset": str(Path(job.setup_dir).resolve()), "meta_sha1": digest, "n_test": job.n_test,
             "closed_loop": closed, "procam_version": package_version(),
             "target": job.target.record() if closed else None,
-            "rows": ["uncompensated", "oracle", "optimum"] if closed else ["uncompensated"]}
+            "rows": ["uncompensated", "oracle", "optimum"] if closed else ["uncompensated"],
+            "oracle_rounds": list(job.oracle_rounds) if closed else None}
 
 
 def baselines(job: BaselineJob) -> dict:
@@ -324,8 +332,9 @@ def baselines(job: BaselineJob) -> dict:
             strip = reachable_overlay(target, reachable_mask(data, target))
             strip = strip.permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
             write_png(Path(job.masks) / f"{data.name}.png", to_uint8(strip.numpy()))
-        oracle, frames = iterative_refinement(data, sim, policy=job.target, return_frames=True)
-        best, _ = optimum(data, sim, policy=job.target, starts=(frames,))
+        oracle, frames = iterative_refinement(data, sim, report=job.oracle_rounds, policy=job.target,
+                                              return_frames=True)
+        best, _ = optimum(data, sim, policy=job.target, starts=(frames,), progress=job.progress)
     result = {"uncompensated": scores, "oracle": oracle, "optimum": best, "light": light,
               "size": list(data.size)}
     if job.record is not None:
