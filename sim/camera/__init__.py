@@ -24,12 +24,12 @@ from sim.camera.optics import blur, distort_image, distort_points, vignetting_pr
 from sim.camera.pipeline import WHITE_CLIPPED_FRACTION, apply_optics, capture, rule_exposure
 from sim.camera.raw import (BAYER_PATTERNS, DEMOSAIC_METHODS, channel_map, demosaic, jpeg,
                             mosaic)
-from sim.camera.response import (RESPONSE_CURVES, check_response, code_thresholds, codes, decode,
+from sim.camera.response import (RESPONSE_NAMES, check_response, code_thresholds, codes, decode,
                                  encode, quantisation_sigma, quantise, response_names)
 from sim.camera.sensor import raw_signal
 
 __all__ = [
-    "BAYER_PATTERNS", "BLOCK", "CHAIN", "DEMOSAIC_METHODS", "RESPONSE_CURVES", "STAGES",
+    "BAYER_PATTERNS", "BLOCK", "CHAIN", "DEMOSAIC_METHODS", "RESPONSE_NAMES", "STAGES",
     "WHITE_CLIPPED_FRACTION",
     "apply_optics", "blur", "capture", "channel_map", "check_response", "code_thresholds", "codes",
     "decode", "demosaic", "distort_image", "distort_points", "encode", "expose", "jpeg", "mosaic",

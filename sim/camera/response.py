@@ -7,7 +7,7 @@
 Response curves map the linear sensor signal in [0, 1] (1 = full well) to the encoded value in
 [0, 1], strictly increasing with an inverse. Two families are offered:
 
-- colour-science CCTFs (:data:`RESPONSE_CURVES`): the names in ``colour.CCTF_ENCODINGS`` whose
+- colour-science CCTFs (:data:`RESPONSE_NAMES`): the names in ``colour.CCTF_ENCODINGS`` whose
   encoding maps 0 to 0 and 1 to 1, is strictly increasing on [0, 1] and is inverted by the
   ``colour.CCTF_DECODINGS`` entry of the same name. Tested over every name of colour-science
   0.4.7, that leaves the display/video curves (sRGB, gammas, BT.601/709/1886/2020, SMPTE 240M,
@@ -33,10 +33,8 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from types import MappingProxyType
 from typing import Callable
 
-import colour
 import numpy as np
 
 from sim.options import integer, string
@@ -62,12 +60,10 @@ def _scurve(x: np.ndarray, k: float) -> np.ndarray:
     return a / (a + (1.0 - x) ** k)
 
 
-RESPONSE_CURVES: MappingProxyType[str, tuple[Callable, Callable]] = MappingProxyType({
-    "linear": (_identity, _identity),
-    **{name: (colour.CCTF_ENCODINGS[name], colour.CCTF_DECODINGS[name])
-       for name in _COLOUR_CURVES if name in colour.CCTF_ENCODINGS},
-})
-"""Named response curves: name -> (encode, decode), both float64 [0, 1] -> [0, 1]."""
+RESPONSE_NAMES = ("linear", *_COLOUR_CURVES)
+"""Names of the fixed response curves; each resolves to (encode, decode), both float64 [0, 1] ->
+[0, 1]. colour-science is imported when a capture first encodes or decodes, not when a setup is
+checked (its import takes about a second)."""
 
 _PARAMETRIC = {"gamma": _gamma, "scurve": _scurve}
 _PARAMETER_RANGE = (0.1, 10.0)
@@ -76,20 +72,24 @@ _LEVELS = 255  # 8-bit code values
 
 def response_names() -> tuple[str, ...]:
     """Names of the fixed response curves (the parametric ``gamma:<g>``/``scurve:<k>`` aside)."""
-    return tuple(RESPONSE_CURVES)
+    return RESPONSE_NAMES
 
 
 def _valid_forms() -> str:
     lo, hi = _PARAMETER_RANGE
-    return (f"one of {', '.join(repr(n) for n in RESPONSE_CURVES)}, or 'gamma:<g>' / "
+    return (f"one of {', '.join(repr(n) for n in RESPONSE_NAMES)}, or 'gamma:<g>' / "
             f"'scurve:<k>' with a number g or k in ({lo:g}, {hi:g})")
 
 
 @functools.lru_cache(maxsize=64)
 def _resolve(response: str) -> tuple[Callable, Callable]:
     """(encode, decode) of a response name; ValueError naming the valid forms otherwise."""
-    if response in RESPONSE_CURVES:
-        return RESPONSE_CURVES[response]
+    if response == "linear":
+        return _identity, _identity
+    if response in _COLOUR_CURVES:
+        import colour
+
+        return colour.CCTF_ENCODINGS[response], colour.CCTF_DECODINGS[response]
     kind, sep, value = response.partition(":")
     if sep and kind in _PARAMETRIC:
         try:
@@ -122,7 +122,8 @@ def check_response(response) -> None:
     """
     if not isinstance(response, str):
         raise ValueError(f"camera response {response!r}: expected a string, {_valid_forms()}")
-    _resolve(response)
+    if response not in RESPONSE_NAMES:
+        _resolve(response)
 
 
 def _apply(values, response, which: int) -> np.ndarray:
