@@ -42,7 +42,7 @@ from sim.errors import ProcamError
 from sim.io import read_json, write_text
 from sim.layout import META_FILE
 from sim.setup import load_setup, scene_path
-from sim.setup.toml import dump_setup
+from sim.setup.toml import dump_setup, read_toml
 
 METHODS = ("tps", "tps-textured", "nayar", "compennet")
 CONTENT = {  # row name -> values: content-dependent processing, off in the default setup; the
@@ -80,8 +80,10 @@ OFF = {("surface", "relief"): 0.0, ("projector", "distortion_k1"): 0.0, ("projec
        ("projector", "psf_sigma"): 0.0, ("projector", "aperture"): 0.0, ("projector", "flicker"): 0.0,
        ("projector", "drift"): 0.0, ("camera", "psf_sigma"): 0.0, ("camera", "bayer"): "none",
        ("camera", "vignetting"): 0.0, ("camera", "distortion"): 0.0, ("camera", "jpeg_quality"): 0,
-       ("camera", "exposure_mode"): "manual", ("registration", "method"): "exact"}
-"""Each effect's off value."""
+       ("camera", "exposure_mode"): "manual", ("registration", "method"): "exact",
+       ("projector", "dynamic_lamp"): 0.0, ("projector", "white_boost"): 0.0, ("camera", "adaptive_tone"): 0.0,
+       ("camera", "style_contrast"): 0.0, ("camera", "style_saturation"): 1.0, ("camera", "sharpen_amount"): 0.0}
+"""Each effect's off value (those of :data:`CONTENT` too, for a setup that turns them on)."""
 PAIRS = (("compennet", "tps-textured"), ("compennet", "tps"), ("tps-textured", "tps"))
 """Paired comparisons per row, image by image on the surrogate benchmark: CompenNet against each
 TPS, and TPS textured − TPS (the paper's signature)."""
@@ -117,6 +119,9 @@ def setups(default=None) -> list:
     (all its effects) and the default setup with every content-dependent effect, in table order.
     ``default``: the setup whose effects the rows turn off and on (``scenes/default.toml`` if none)."""
     default = default or load_setup(scene_path("default"))
+    if not hasattr(default.surface.shape, "relief"):
+        raise ProcamError(f"setup {default.name!r}: surface.geometry = {default.surface.geometry!r}: the "
+                          "table's relief row needs a plane surface (geometry = \"plane\")")
     base = with_values(default, "effects_base", OFF)
     out = [base]
     rows = [{k: _value(default, *k) for k in keys} for keys in EFFECTS.values()] + list(CONTENT.values())
@@ -219,9 +224,10 @@ def check_setup(path: Path | None, setup) -> None:
         return
     kept = path.with_name(SETUP_FILE)
     if not kept.is_file():
-        raise ProcamError(f"{path}: no {SETUP_FILE} beside it records the setup its runs were made from; "
-                          "keep only runs written by this script")
-    there, here = (_dotted(tomllib.loads(text)) for text in (kept.read_text(), dump_setup(setup)))
+        raise ProcamError(f"{path}: no {SETUP_FILE} beside it records the setup its runs were made from "
+                          "(runs made before the table kept it: put the setup file they were made from "
+                          f"there as {SETUP_FILE})")
+    there, here = _dotted(read_toml(kept)), _dotted(tomllib.loads(dump_setup(setup)))
     differ = [f"{k} = {there.get(k, 'unset')} (this call: {here.get(k, 'unset')})"
               for k in dict.fromkeys([*there, *here]) if k != "name" and there.get(k) != here.get(k)]
     if differ:
@@ -396,9 +402,10 @@ def main() -> None:
                                    "holds a finished base run of every method asked)")
     ap.add_argument("--keep", type=Path, default=None,
                     help="an effects_runs.csv of calls into another folder (e.g. the one in "
-                         "benchmarks/results/effects/256/): its runs, and the per-image scores of "
-                         "the effects_per_image.csv beside it, stay in the table where this folder "
-                         "has none of the same setup and method")
+                         "benchmarks/results/effects/256/, made from the setup beside it: --setup "
+                         "benchmarks/results/effects/256/effects_setup.toml): its runs, and the "
+                         "per-image scores of the effects_per_image.csv beside it, stay in the table "
+                         "where this folder has none of the same setup and method")
     args = ap.parse_args()
     if args.keep is not None and not args.keep.is_file():
         ap.error(f"--keep {args.keep}: no such file")

@@ -6,6 +6,7 @@ import csv
 import importlib.util
 import json
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -186,7 +187,8 @@ def test_runs_are_kept_only_beside_the_setup_they_were_made_from(effects, tmp_pa
     monkeypatch.setattr(effects, "run_bench", lambda suite, *a: ran.append([s.name for s in suite]))
     lighter = tmp_path / "lighter.toml"  # the default setup, printed lighter
     text = effects.scene_path("default").read_text()
-    lighter.write_text(text.replace("ink_density = 0.75", "ink_density = 0.5"))
+    lighter.write_text(text.replace("ink_density = 0.75", "ink_density = 0.5").replace('name = "default"',
+                                                                                     'name = "lighter"'))
     assert lighter.read_text() != text
     argv = ["effects.py", "--out", str(out), "--size", "16", "--n-test", "4", "--methods", "tps", "--only", "effects_05"]
     monkeypatch.setattr(sys, "argv", argv + ["--setup", str(lighter)])
@@ -207,9 +209,37 @@ def test_runs_are_kept_only_beside_the_setup_they_were_made_from(effects, tmp_pa
                                                      "from another setup")
     assert "surface.ink_density = 0.5 (this call: 0.75)" in err and "name" not in err.split("):")[1]
     assert len(ran) == 1
+    (out / effects.SETUP_FILE).write_text("[surface\n")
+    with pytest.raises(effects.ProcamError, match=f"{effects.SETUP_FILE}: not valid TOML"):
+        effects.check_setup(out / "effects_runs.csv", kept)
     (out / effects.SETUP_FILE).unlink()  # runs without a record of their setup
     with pytest.raises(effects.ProcamError, match=f"no {effects.SETUP_FILE} beside it"):
         effects.check_setup(out / "effects_runs.csv", kept)
+
+
+def test_every_effect_is_off_in_the_base_of_a_setup_that_turns_them_on(effects, tmp_path):
+    mine = tmp_path / "processed.toml"
+    text = effects.scene_path("default").read_text()
+    for key, value in (("dynamic_lamp", "0.55"), ("adaptive_tone", "0.5")):
+        text, n = re.subn(rf"^{key} = [0-9.]+", f"{key} = {value}", text, flags=re.M)
+        assert n == 1, key
+    mine.write_text(text)
+    rows = {s.name: s for s in effects.setups(effects.load_setup(mine))}
+    base = rows["effects_base"]
+    assert base.projector.dynamic_lamp == 0 and base.camera.adaptive_tone == 0
+    assert base.projector.flare == 0 and base.surface.shape.relief == 0
+    assert rows["effects_17"].projector.dynamic_lamp == 0.55 and rows["effects_17"].camera.adaptive_tone == 0
+    assert rows["effects_all"].camera.adaptive_tone == 0.5  # the setup itself
+
+
+def test_a_setup_without_a_plane_is_refused_by_name(effects, tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["effects.py", "--out", str(tmp_path / "out"), "--setup",
+                                      str(effects.scene_path("corner"))])
+    with pytest.raises(SystemExit) as exit_:
+        effects.main()
+    err = capsys.readouterr().err
+    assert exit_.value.code == 1 and "surface.geometry = 'corner'" in err and "needs a plane surface" in err, err
+    assert not (tmp_path / "out").exists()
 
 
 def _images(setup: str, method: str, psnrs) -> list[dict]:
