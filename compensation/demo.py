@@ -18,8 +18,8 @@ import numpy as np
 import torch
 
 from compensation.data import load_setup_data, to_tensor
-from compensation.experiments.closed_loop import (CAPTURES_DIR, N_CAPTURES, closed_loop_target, reachable_mask,
-                                                 reachable_overlay, simulator_for, uncompensated)
+from compensation.experiments.closed_loop import (CAPTURES_DIR, N_CAPTURES, closed_loop_target, projected_as_is,
+                                                 reachable_mask, reachable_overlay, simulator_for)
 from compensation.experiments.targets import TargetPolicy
 from compensation.reports.report import build_report
 from compensation.experiments.jobs import (BaselineJob, FitJob, baselines, bound_cells, check_study_folder,
@@ -165,7 +165,7 @@ def run_demo(out: Path, progress: bool = True, target: TargetPolicy = TargetPoli
              f"|{'-' * 42}|--------|--------|--------|--------|----------------|"]
     y_target = closed_loop_target(data, y, target)[0][:N_FIGURE]  # those the closed loop scores against
     mask = reachable_mask(data, y_target)
-    _, as_is = uncompensated(data, sim, policy=target)
+    as_is = projected_as_is(data, sim, y_target, own=target.name == "none")[:N_FIGURE]
     captures, rows, fitted = {}, [], {}
     for name in METHODS:
         run_dir = out / "runs" / f"default-{name}"
@@ -192,7 +192,7 @@ def run_demo(out: Path, progress: bool = True, target: TargetPolicy = TargetPoli
                       results["oracle"][-1]))
     lines.append(_row(f"exact optimum ({results['optimum']['evaluations']:g} noise-free eval.)",
                       results["optimum"]))
-    write_png(out / "demo.png", figure(data.surface, as_is[:N_FIGURE], captures, y_target, mask))
+    write_png(out / "demo.png", figure(data.surface, as_is, captures, y_target, mask))
     write_json(out / "demo.json", results)
     oracle = results["oracle"][-1]
     base = {"point": 0, "setup": setup.name, "status": "ok", "error": "", **target_cells(unc),

@@ -89,9 +89,10 @@ def pytest_collection_modifyitems(items):
     """Put :data:`LONGEST_MODULES` first, and run the doctests of ``sim/`` and ``compensation/`` under
     numpy's default print options.
 
-    colour-science calls ``np.set_printoptions(legacy="1.13")`` when it is imported (by
-    ``sim.camera``), which changes how arrays and numpy scalars print; whether it has been imported
-    before a doctest runs depends on the collection order. The examples are written in numpy's own
+    colour-science calls ``np.set_printoptions(legacy="1.13")`` when it is imported (by the first
+    capture's response curve, :mod:`sim.camera.response`, or a colour temperature or ΔE), which
+    changes how arrays and numpy scalars print; whether it has been imported before a doctest runs
+    depends on the collection order. The examples are written in numpy's own
     format, so each doctest runs under the defaults, and the previous options are restored after it.
     """
     import numpy as np

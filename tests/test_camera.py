@@ -1,6 +1,8 @@
 """Tests of sim.camera: response curves, Poisson-Gaussian sensor noise, clipping, quantisation."""
 from __future__ import annotations
 
+import subprocess
+import sys
 import warnings
 from types import SimpleNamespace
 
@@ -220,3 +222,12 @@ def test_a_forked_child_draws_noise_with_its_own_threads(noise_version):
     with multiprocessing.get_context("fork").Pool(1) as pool:
         there = pool.apply_async(camera.capture, (rad, cam(), np.random.default_rng(2))).get(timeout=60)
     np.testing.assert_array_equal(here, there)
+
+
+def test_checking_a_setup_leaves_colour_science_to_the_first_capture():
+    # importing colour-science takes about a second: the command line and setup validation do without
+    code = ("import sys, compensation.cli; from sim.setup import load_setup, scene_path; "
+            "load_setup(scene_path('default')); print('colour' in sys.modules); "
+            "from sim.camera import encode; encode(0.5, 'sRGB'); print('colour' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert proc.stdout.split() == ["False", "True"]

@@ -239,9 +239,10 @@ def write_captures(run_dir: str | Path, captured: torch.Tensor, n: int = N_CAPTU
     return folder
 
 
-def _as_is(data: SetupData, sim: Simulator, y: torch.Tensor, own: bool) -> torch.Tensor:
+def projected_as_is(data: SetupData, sim: Simulator, y: torch.Tensor, own: bool) -> torch.Tensor:
     """Captures of the targets y projected as is: the dataset's test captures when y are its own
-    test frames unchanged (``own``; they were captured already), else fresh ones."""
+    test frames unchanged (``own``; they were captured already), else fresh ones (each image's
+    noise drawn from its index in y, so the first images of y are captured as they are alone)."""
     return data.test.captures if own else project(sim, y, seeds.CLOSED_LOOP + 1)
 
 
@@ -261,7 +262,7 @@ def uncompensated(data: SetupData, sim: Simulator, desired: torch.Tensor | None 
         The captures, float32 (N, 3, H, W).
     """
     y, record = closed_loop_target(data, data.test.frames if desired is None else desired, policy)
-    captured = _as_is(data, sim, y, desired is None and policy.name == "none")
+    captured = projected_as_is(data, sim, y, desired is None and policy.name == "none")
     return {**closed_loop_scores(captured, y, reachable_mask(data, y)), "target": record}, captured
 
 
@@ -298,7 +299,7 @@ def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor 
     rows = []
     for k in range(max(report) + 1):
         if k == 0:
-            captured = _as_is(data, sim, y, desired is None and policy.name == "none")
+            captured = projected_as_is(data, sim, y, desired is None and policy.name == "none")
         else:
             captured = project(sim, x, seeds.CLOSED_LOOP + 1 + k)
         if k in report:

@@ -245,6 +245,10 @@ def fit(job: FitJob) -> dict:
             "run": str(run_dir)}
 
 
+ORACLE_ROUNDS = (1, 2, 4, 8)
+"""The feedback rounds after which a bench scores the oracle."""
+
+
 @dataclass(frozen=True)
 class BaselineJob:
     """The method-free scores of the dataset ``setup_dir`` on its first ``n_test`` test pairs.
@@ -275,7 +279,7 @@ class BaselineJob:
     masks: Path | None = None
     record: Path | None = None
     target: TargetPolicy = TargetPolicy()
-    oracle_rounds: tuple[int, ...] = (1, 2, 4, 8)
+    oracle_rounds: tuple[int, ...] = ORACLE_ROUNDS
     progress: bool = False
 
 
@@ -286,7 +290,9 @@ def _baseline_key(job: BaselineJob, closed: bool) -> dict:
             "closed_loop": closed, "procam_version": package_version(),
             "target": job.target.record() if closed else None,
             "rows": ["uncompensated", "oracle", "optimum"] if closed else ["uncompensated"],
-            "oracle_rounds": list(job.oracle_rounds) if closed else None}
+            # the rounds only where they are not a bench's, so that records kept before they
+            # were part of the key stay valid
+            **({"oracle_rounds": list(job.oracle_rounds)} if closed and job.oracle_rounds != ORACLE_ROUNDS else {})}
 
 
 def baselines(job: BaselineJob) -> dict:

@@ -7,7 +7,7 @@
 Response curves map the linear sensor signal in [0, 1] (1 = full well) to the encoded value in
 [0, 1], strictly increasing with an inverse. Two families are offered:
 
-- colour-science CCTFs (:data:`RESPONSE_NAMES`): the names in ``colour.CCTF_ENCODINGS`` whose
+- colour-science CCTFs (:data:`RESPONSE_NAMES`, after ``"linear"``): the names in ``colour.CCTF_ENCODINGS`` whose
   encoding maps 0 to 0 and 1 to 1, is strictly increasing on [0, 1] and is inverted by the
   ``colour.CCTF_DECODINGS`` entry of the same name. Tested over every name of colour-science
   0.4.7, that leaves the display/video curves (sRGB, gammas, BT.601/709/1886/2020, SMPTE 240M,
