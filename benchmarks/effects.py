@@ -31,7 +31,6 @@ import argparse
 import csv
 import dataclasses
 import math
-import tomllib
 from pathlib import Path
 
 from compensation.experiments.bench import BenchConfig, run_bench
@@ -41,8 +40,10 @@ from compensation.reports.summary import write_csv
 from sim.errors import ProcamError
 from sim.io import read_json, write_text
 from sim.layout import META_FILE
+from sim.options import flat_items
 from sim.setup import load_setup, scene_path
-from sim.setup.toml import dump_setup, read_toml
+from sim.setup.schema import SECTIONS
+from sim.setup.toml import dump_setup
 
 METHODS = ("tps", "tps-textured", "nayar", "compennet")
 CONTENT = {  # row name -> values: content-dependent processing, off in the default setup; the
@@ -122,14 +123,23 @@ def setups(default=None) -> list:
     if not hasattr(default.surface.shape, "relief"):
         raise ProcamError(f"setup {default.name!r}: surface.geometry = {default.surface.geometry!r}: the "
                           "table's relief row needs a plane surface (geometry = \"plane\")")
-    base = with_values(default, "effects_base", OFF)
-    out = [base]
+    first, *names, everything, processed = setup_names()
+    base = with_values(default, first, OFF)
     rows = [{k: _value(default, *k) for k in keys} for keys in EFFECTS.values()] + list(CONTENT.values())
-    for i, on in enumerate(rows, start=1):
-        out.append(with_values(base, f"effects_{i:02d}", on))
-    out.append(dataclasses.replace(default, name="effects_all"))
-    out.append(with_values(default, "effects_all_content", {k: v for on in CONTENT.values() for k, v in on.items()}))
-    return out
+    return [base, *(with_values(base, name, on) for name, on in zip(names, rows)),
+            dataclasses.replace(default, name=everything),
+            with_values(default, processed, {k: v for on in CONTENT.values() for k, v in on.items()})]
+
+
+def setup_names() -> list[str]:
+    """The names of :func:`setups`' setups, in table order.
+
+    >>> names = setup_names()
+    >>> names[:2], names[-2:]
+    (['effects_base', 'effects_01'], ['effects_all', 'effects_all_content'])
+    """
+    rows = len(EFFECTS) + len(CONTENT)
+    return ["effects_base", *(f"effects_{i:02d}" for i in range(1, rows + 1)), "effects_all", "effects_all_content"]
 
 
 def _number(text: str) -> float:
@@ -200,20 +210,15 @@ def check_kept(path: Path | None, settings) -> None:
                               "keep runs of the same settings, or write to another --out")
 
 
-def _dotted(table: dict) -> dict:
-    """A setup's TOML tables as ``{"section.key": value}``.
-
-    >>> _dotted({"name": "a", "surface": {"relief": 2.0}})
-    {'name': 'a', 'surface.relief': 2.0}
-    """
-    return {f"{s}.{k}" if isinstance(t, dict) else s: v for s, t in table.items()
-            for k, v in (t.items() if isinstance(t, dict) else [(s, t)])}
+def _keys(setup) -> dict:
+    """A setup's values by ``section.key`` (its name aside)."""
+    return {f"{section}.{k}": v for section in SECTIONS for k, v in flat_items(getattr(setup, section)).items()}
 
 
 def check_setup(path: Path | None, setup) -> None:
     """Refuse an ``effects_runs.csv`` holding runs made from another setup than ``setup``, the one
     whose effects this call turns off and on: the :data:`SETUP_FILE` beside it must read back to
-    the same resolved setup.
+    the same resolved setup (its name aside).
 
     Raises
     ------
@@ -227,9 +232,9 @@ def check_setup(path: Path | None, setup) -> None:
         raise ProcamError(f"{path}: no {SETUP_FILE} beside it records the setup its runs were made from "
                           "(runs made before the table kept it: put the setup file they were made from "
                           f"there as {SETUP_FILE})")
-    there, here = _dotted(read_toml(kept)), _dotted(tomllib.loads(dump_setup(setup)))
+    there, here = (_keys(s) for s in (load_setup(kept), setup))
     differ = [f"{k} = {there.get(k, 'unset')} (this call: {here.get(k, 'unset')})"
-              for k in dict.fromkeys([*there, *here]) if k != "name" and there.get(k) != here.get(k)]
+              for k in dict.fromkeys([*there, *here]) if there.get(k) != here.get(k)]
     if differ:
         raise ProcamError(f"{path}: its runs were made from another setup ({kept}): {'; '.join(differ)}; "
                           "keep runs of the same setup (--setup), or write to another --out")
@@ -292,7 +297,7 @@ def _row_names() -> list[tuple[str, str]]:
     """(row name, setup name) of every row, in table order."""
     names = ["base (all effects off)", *EFFECTS, *CONTENT, "all (the default setup)",
              "all + content-dependent processing"]
-    return list(zip(names, [s.name for s in setups()]))
+    return list(zip(names, setup_names()))
 
 
 def paired(images: list[dict]) -> list[dict]:
