@@ -30,7 +30,7 @@ import math
 import statistics
 from pathlib import Path
 
-from compensation.experiments.bench import BenchConfig, run_bench
+from compensation.experiments.bench import BenchConfig, run_bench, table1_options
 from compensation.methods import get_method
 from compensation.reports.paired import paired_comparison, paired_differences
 from compensation.reports.summary import attach_per_image, read_results
@@ -62,8 +62,8 @@ def variant_setups(suite: list, variant: str) -> list:
 
 def finished(folder: Path, setups: list[str], cfg: BenchConfig, n_train: int) -> bool:
     """Whether ``folder`` holds a finished variant: a ``study.json`` of a Table-1 bench at ``cfg``'s
-    profile, canonical size, test count and test frames with ``n_train`` training pairs and these
-    ``setups``, whose ``results.csv`` has an ok row for every setup and method of ``cfg`` and whose
+    profile, method options (as the profile resolves them now), canonical size, test count and test
+    frames with ``n_train`` training pairs and these ``setups``, whose ``results.csv`` has an ok row for every setup and method of ``cfg`` and whose
     ``per_image.csv`` exists. Its datasets and runs need not be there."""
     try:
         study = read_json(folder / "study.json", "study record")
@@ -71,6 +71,7 @@ def finished(folder: Path, setups: list[str], cfg: BenchConfig, n_train: int) ->
     except ProcamError:
         return False
     same = (study.get("kind") == "bench" and study.get("profile") == cfg.profile
+            and study.get("options") == table1_options(cfg)
             and study.get("size") == [cfg.canonical] * 2 and study.get("n_test") == cfg.tests
             and study.get("n_train") == [n_train] and study.get("test_frames") == cfg.test_frames
             and set(setups) <= set(study.get("setups", {})))

@@ -4,6 +4,7 @@ from the benches' own result files, and a finished variant kept from its result 
 from __future__ import annotations
 
 import csv
+import json
 import statistics
 from pathlib import Path
 
@@ -66,6 +67,19 @@ def test_signature_per_variant(tmp_path):
         assert f"{variant}: finished in {kept / variant}, not run again" in proc.stdout
         assert not (kept / variant / "data").exists()
     assert _rows(kept / "signature.csv") == _rows(out / "signature.csv")
+
+    # a variant made with other method options (a profile whose budget changed since) is not
+    # finished: it is run again at the options the profile gives now
+    record = json.loads((kept / "default" / "study.json").read_text())
+    assert record["options"]["tps"]["smoothing"] > 0
+    record["options"]["tps"]["smoothing"] *= 2
+    (kept / "default" / "study.json").write_text(json.dumps(record))
+    proc = run_benchmark("signature.py", "--out", str(kept), *args, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "white_boost: finished" in proc.stdout and "default: finished" not in proc.stdout
+    assert (kept / "default" / "data").is_dir() and not (kept / "white_boost" / "data").exists()
+    assert json.loads((kept / "default" / "study.json").read_text())["options"] == \
+        json.loads((out / "default" / "study.json").read_text())["options"]
 
 
 @pytest.mark.slow

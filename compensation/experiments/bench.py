@@ -25,7 +25,7 @@ folder holds the same ``study.json`` (kind ``bench``) and ``results.csv`` as a s
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from compensation.experiments.executors import LocalExecutor
@@ -115,6 +115,12 @@ def _train_config(cfg: BenchConfig, method: str, n_train: int, **job_values):
     values.update({k: v for k, v in job_values.items()
                    if v is not None and (k in ("loss", "init") or k not in cfg.overrides)})
     return make_config(cfg.profile, method, **{**values, "n_train": n_train, "n_test": cfg.tests})
+
+
+def table1_options(cfg: BenchConfig) -> dict[str, dict]:
+    """Each Table 1 method's resolved options (profile, then the user's), as ``study.json``
+    records them under ``options``: what a finished bench's rows were trained with."""
+    return {m: asdict(_train_config(cfg, m, cfg.sizes[0]).options) for m in cfg.methods}
 
 
 def bench_plan(cfg: BenchConfig, out: Path, suite: list | None, setups: list[str], white=None) -> Plan:
@@ -269,7 +275,7 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         "kind": "bench", "base": None, "axes": [], "methods": list(cfg.methods), "seeds": [seed],
         "n_train": list(cfg.sizes), "n_test": cfg.tests, "size": [cfg.canonical] * 2 if suite else None,
         "overrides": cfg.overrides, "tables": list(cfg.tables), "profile": cfg.profile,
-        "test_frames": cfg.test_frames,
+        "options": table1_options(cfg), "test_frames": cfg.test_frames,
         "target": cfg.target.record() if cfg.closed_loop else None, "executor": executor.name,
         "setups": {s: os.path.relpath(data_root / s / SETUP_FILE, out) for s in setups
                    if simulated(data_root / s)}})

@@ -336,14 +336,14 @@ class CompenNetOptions(Options):
         # 23.30 dB at batch 8 (~100 s); 250 iterations at batch 16 give 22.51 dB in ~90 s.
         # So 500 iterations of batch 8.
         "quick": dict(iters=500, batch=8),
-        # The paper's 256² on 2 CPU cores: training on 64-pixel windows of the 256² images. On the
-        # paper suite's light1_pos1_squares at 256² (125 / 100 pairs, batch 16;
-        # benchmarks/results/patches/README.md) 64² windows reach 21.6, 22.9 and 24.1 dB after
-        # 500, 1000 and 2000 iterations (32² windows 23.3 dB, 128² windows 23.1 dB after 500 at
-        # four times the cost per step): 2000 iterations, ~3-5 min on 2 free cores. It stops
-        # 1.5 dB short of the paper's full-image recipe on the suite as shipped; 6000 iterations
-        # (~14 min) match it (the same README).
-        "faithful": dict(patch=64, iters=2000, batch=16),
+        # The paper's 256² on 2 CPU cores: training on 64-pixel windows of the 256² images, as
+        # many window samples as match the paper's full-image recipe (1000 iterations of 64
+        # 256² images, ~2 h on 2 cores). On the paper suite's light1_pos1_squares at 256² as
+        # shipped (125 / 100 pairs; benchmarks/results/patches/README.md) that recipe scores
+        # 27.78 dB; 64² windows at batch 16 reach 26.29, 27.22 and 27.79 dB after 2000, 4000
+        # and 6000 iterations (4.9, 9.2 and 13.7 min on 2 free cores; 128² windows and batch 8
+        # no closer for their time): 6000 iterations.
+        "faithful": dict(patch=64, iters=6000, batch=16),
     }
 
     def __post_init__(self):

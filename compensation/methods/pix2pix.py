@@ -61,8 +61,8 @@ PIX2PIX_PROFILES: dict[str, dict] = {
     # profile's 64².
     "quick": dict(iters=500, batch=1),
     # The paper's 256² (8 levels) on 2 CPU cores: ~0.7 CPU-seconds per iteration on one thread
-    # (measured beside other jobs), so 500 iterations take about 6 CPU-minutes, about what the
-    # faithful profile's CompenNet takes (~4 minutes of both cores).
+    # (measured beside other jobs), so 500 iterations take about 6 CPU-minutes (the faithful
+    # profile's CompenNet takes ~14 minutes of both cores).
     "faithful": dict(iters=500, batch=1),
 }
 """pix2pix's iterations and batch size per training profile (explicit options still win)."""
