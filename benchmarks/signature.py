@@ -63,8 +63,9 @@ def variant_setups(suite: list, variant: str) -> list:
 def finished(folder: Path, setups: list[str], cfg: BenchConfig, n_train: int) -> bool:
     """Whether ``folder`` holds a finished variant: a ``study.json`` of a Table-1 bench at ``cfg``'s
     profile, method options (as the profile resolves them now), canonical size, test count and test
-    frames with ``n_train`` training pairs and these ``setups``, whose ``results.csv`` has an ok row for every setup and method of ``cfg`` and whose
-    ``per_image.csv`` exists. Its datasets and runs need not be there."""
+    frames with ``n_train`` training pairs and these ``setups``, whose ``results.csv`` has an ok
+    row for every setup and method of ``cfg`` and whose ``per_image.csv`` exists. Its datasets and
+    runs need not be there."""
     try:
         study = read_json(folder / "study.json", "study record")
         rows = read_results(folder / "results.csv", [])
