@@ -1,6 +1,6 @@
 """Progress of a plan: the time left from the jobs done so far (reused jobs left out, unknown while
-a kind has none done), the overall line's counts, and per-job bars naming their setup, method and
-seed."""
+a kind has none done), the overall line's counts, per-job bars naming their setup, method and
+seed, and the baselines' bars (the oracle's corrections, the exact optimum) naming their setup."""
 from __future__ import annotations
 
 import json
@@ -70,6 +70,9 @@ def test_a_study_shows_its_jobs_and_names_each_bar(tmp_path, capfd, monkeypatch)
     for setup in setups:
         assert f"{setup} · render" in err
         assert f"{setup} · tps · seed 0 · fit" in err  # nayar fits without a bar
+        # the baselines: the oracle's corrections and the exact optimum's evaluations
+        assert re.search(rf"{setup} · oracle: 100%.*\| 8/8 ", err)
+        assert f"{setup} · exact optimum" in err
     assert main(args) == 0  # again: every job reused, none timed
     lines = [line for line in capfd.readouterr().err.splitlines() if line.startswith("procam: jobs done:")]
     assert lines[-1] == ("procam: jobs done: renders 2/2, fits 4/4, scores 2/2 (8 reused, 0 failed); "

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from compensation.data import SetupData
 from compensation.experiments.targets import IDENTITY, TargetPolicy, map_record, map_targets
@@ -269,7 +270,8 @@ def uncompensated(data: SetupData, sim: Simulator, desired: torch.Tensor | None 
 def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor | None = None,
                          gain: float = 1.0, report: tuple[int, ...] = (1, 2, 4, 8),
                          policy: TargetPolicy = TargetPolicy(),
-                         return_frames: bool = False) -> list[dict] | tuple[list[dict], torch.Tensor]:
+                         return_frames: bool = False,
+                         progress: bool = False) -> list[dict] | tuple[list[dict], torch.Tensor]:
     """Model-free feedback compensation (Nayar et al. 2003) aiming at the target y': the oracle row.
 
     Start from x₀ = y'; project xₖ, capture cₖ, correct xₖ₊₁ = clip(xₖ + gain · (y' − cₖ), 0, 1).
@@ -284,6 +286,8 @@ def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor 
         How y is mapped to the target y' (:func:`closed_loop_target`).
     return_frames : bool
         Also return the frames xₖ of the last row (where the exact optimum may start).
+    progress : bool
+        Show a progress bar of the corrections (``<setup> · oracle``).
 
     Returns
     -------
@@ -297,14 +301,17 @@ def iterative_refinement(data: SetupData, sim: Simulator, desired: torch.Tensor 
     mask = reachable_mask(data, y)
     x = y.clone()
     rows = []
+    bar = tqdm(total=max(report), desc=f"{data.name} · oracle", unit="correction", disable=not progress)
     for k in range(max(report) + 1):
         if k == 0:
             captured = projected_as_is(data, sim, y, desired is None and policy.name == "none")
         else:
             captured = project(sim, x, seeds.CLOSED_LOOP + 1 + k)
+            bar.update()
         if k in report:
             rows.append({"iterations": k, **closed_loop_scores(captured, y, mask),
                          "projections": int(y.shape[0]) * (k + 1)})
             last = x
         x = (x + gain * (y - captured)).clamp(0, 1)
+    bar.close()
     return (rows, last) if return_frames else rows

@@ -270,7 +270,7 @@ class BaselineJob:
         The feedback rounds after which the oracle is scored (one row each); the exact optimum
         starts from the frames of the last.
     progress : bool
-        Show the exact optimum's progress bar.
+        Show the oracle's and the exact optimum's progress bars.
     """
 
     setup_dir: Path
@@ -339,7 +339,7 @@ def baselines(job: BaselineJob) -> dict:
             strip = strip.permute(2, 0, 3, 1).reshape(y.shape[2], -1, 3)
             write_png(Path(job.masks) / f"{data.name}.png", to_uint8(strip.numpy()))
         oracle, frames = iterative_refinement(data, sim, report=job.oracle_rounds, policy=job.target,
-                                              return_frames=True)
+                                              return_frames=True, progress=job.progress)
         best, _ = optimum(data, sim, policy=job.target, starts=(frames,), progress=job.progress)
     result = {"uncompensated": scores, "oracle": oracle, "optimum": best, "light": light,
               "size": list(data.size)}

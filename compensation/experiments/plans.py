@@ -280,7 +280,7 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
         if stage is stages[-1]:
             bases = [BaselineJob(data_root / s, scoring.n_test, scoring.closed_loop,
                                  out / "reachable" if scoring.masks else None, out / "baselines" / f"{s}.json",
-                                 scoring.target)
+                                 scoring.target, progress=progress)
                      for s in ready]
         # the baselines first: their duration is known early, for the time left
         done = count.run(executor, tasks(baselines, bases, gpus) + tasks(fit, list(unique.values()), gpus))
