@@ -142,3 +142,38 @@ def test_bad_input_exits_2_with_one_line_naming_the_folder(folders, tmp_path, ca
     assert err.startswith("procam: error: ") and named in err and "expected" in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not list(tmp_path.glob("*/compare-*"))
+
+
+def test_per_image_scores_pair_by_image_number_not_by_line_order(folders):
+    """B's per_image.csv with its lines reversed pairs the same images: the same intervals."""
+    a, b = folders
+    assert main(["compare", str(a), str(b), "--out", str(a.parent / "in-order")]) == 0
+    lines = (b / "per_image.csv").read_text().splitlines()
+    (b / "per_image.csv").write_text("\n".join([lines[0], *reversed(lines[1:])]) + "\n")
+    assert main(["compare", str(a), str(b), "--out", str(a.parent / "reversed")]) == 0
+    assert csv_rows(a.parent / "reversed" / "compare.csv") == csv_rows(a.parent / "in-order" / "compare.csv")
+    r = _scored(csv_rows(a.parent / "reversed" / "compare.csv"), "run", "psnr", method="tps", seed=1,
+                **{AXIS: "0"})
+    assert float(r["lo"]) == pytest.approx(SHIFT[1]) == pytest.approx(float(r["hi"]))
+
+
+@pytest.mark.parametrize("case", ["dropped", "twice", "not a number"])
+def test_per_image_runs_with_a_gap_or_a_repeat_are_refused(folders, capsys, case):
+    a, b = folders
+    lines = (b / "per_image.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    image = header.index("image")
+    if case == "dropped":  # the first run's first image
+        body = lines[2:]
+    elif case == "twice":
+        body = [lines[1], *lines[1:]]
+    else:
+        cells = lines[1].split(",")
+        cells[image] = "first"
+        body = [",".join(cells), *lines[2:]]
+    (b / "per_image.csv").write_text("\n".join([lines[0], *body]) + "\n")
+    assert main(["compare", str(a), str(b)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("procam: error: ") and str(b / "per_image.csv") in err and "Traceback" not in err
+    assert {"dropped": "lacks image(s) 1 (expected images 1 to 2)", "twice": "image 1 of run point 0",
+            "not a number": "column image: expected a test image number"}[case] in err

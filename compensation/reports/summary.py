@@ -198,22 +198,35 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
     return rows
 
 
+RUN_COLUMNS = ("point", "setup", "method", "n_train", "seed", "table", "variant")
+"""The columns that name one run of a folder in ``results.csv`` and ``per_image.csv`` alike."""
+
+
 def _run_key(row: dict) -> tuple:
     """What names one run of a folder in ``results.csv`` and ``per_image.csv`` alike."""
-    return tuple(str(row.get(k, "")) for k in ("point", "setup", "method", "n_train", "seed", "table",
-                                                "variant"))
+    return tuple(str(row.get(k, "")) for k in RUN_COLUMNS)
+
+
+def _run_text(row: dict) -> str:
+    """A run's name in a message: its non-empty :data:`RUN_COLUMNS`.
+
+    >>> _run_text({"point": "0", "setup": "default", "method": "tps", "seed": "1", "table": ""})
+    'point 0, setup default, method tps, seed 1'
+    """
+    return ", ".join(f"{k} {row[k]}" for k in RUN_COLUMNS if str(row.get(k) or ""))
 
 
 def attach_per_image(rows: list[dict], path: Path) -> list[dict]:
     """``rows`` of :func:`read_results`, each with ``per_image``: its run's per-image scores of
-    ``per_image.csv`` at ``path`` by column (lists in image order, NaN for an empty cell); the rows
-    unchanged where the file is absent (a folder written before it existed).
+    ``per_image.csv`` at ``path`` by column (lists in image order, by the ``image`` column and not
+    by the order of the lines, NaN for an empty cell); the rows unchanged where the file is absent
+    (a folder written before it existed).
 
     Raises
     ------
     ProcamError
-        If the file is not UTF-8 or cut short, lacks a column it is joined by, or a score cell is
-        not a number.
+        If the file is not UTF-8 or cut short, lacks a column it is joined by, a score cell is not
+        a number, or a run's images are not numbered 1 to N each once.
     """
     path = Path(path)
     if not path.is_file():
@@ -224,14 +237,33 @@ def attach_per_image(rows: list[dict], path: Path) -> list[dict]:
     if missing:
         raise ProcamError(f"{path}: missing column(s) {', '.join(missing)}")
     scores = [c for c in reader.fieldnames if c.endswith("psnr")]
-    found: dict[tuple, dict] = {}
+    images: dict[tuple, dict[int, dict]] = {}
     for line, raw in enumerate(reader, start=2):
-        per = found.setdefault(_run_key(raw), {c: [] for c in scores})
+        try:
+            image = int(raw["image"] or "")
+        except ValueError:
+            image = 0
+        if image < 1:
+            raise ProcamError(f"{path}, line {line}: column image: expected a test image number "
+                              f"from 1, found {raw['image']!r}")
+        run = images.setdefault(_run_key(raw), {})
+        if image in run:
+            raise ProcamError(f"{path}, line {line}: image {image} of run {_run_text(raw)} is given "
+                              "twice")
+        run[image] = {}
         for c in scores:
             value = _number(raw[c] or "")
             if isinstance(value, str):
                 raise ProcamError(f"{path}, line {line}: column {c}: expected a number, found {value!r}")
-            per[c].append(value)
+            run[image][c] = value
+    found: dict[tuple, dict] = {}
+    for key, run in images.items():
+        absent = sorted(set(range(1, max(run) + 1)) - set(run))
+        if absent:
+            raise ProcamError(f"{path}: run {_run_text(dict(zip(RUN_COLUMNS, key)))} lacks image(s) "
+                              f"{', '.join(map(str, absent[:5]))}{' …' if len(absent) > 5 else ''} "
+                              f"(expected images 1 to {max(run)})")
+        found[key] = {c: [run[i][c] for i in range(1, len(run) + 1)] for c in scores}
     return [{**r, "per_image": found.get(_run_key(r), {})} for r in rows]
 
 
