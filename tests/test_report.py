@@ -451,3 +451,61 @@ def test_each_value_of_a_second_axis_keeps_its_own_chart_files(tmp_path):
     assert {"study_camera.read_noise=0.png", "study_camera.read_noise=0.01.png"} <= set(names)
     assert len(set(names)) == len(names) and all(p.is_file() for p in written)
     assert all(p.with_name(p.name[:-3] + "svg").is_file() for p in written)
+
+
+def _study_json(folder: Path, change) -> None:
+    study = json.loads((folder / "study.json").read_text())
+    change(study)
+    (folder / "study.json").write_text(json.dumps(study))
+
+
+def _results_cell(folder: Path, column: str, value: str, line: int = 2) -> None:
+    lines = (folder / "results.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    cells = lines[line - 1].split(",")
+    cells[header.index(column)] = value
+    lines[line - 1] = ",".join(cells)
+    (folder / "results.csv").write_text("\n".join(lines) + "\n")
+
+
+HOSTILE = {
+    "a setup outside the layout": (
+        lambda f: _study_json(f, lambda s: s["setups"].update(p0="/etc/passwd")),
+        "study.json: setups.p0 = '/etc/passwd': expected the path of a setup file named setup.toml"),
+    "a setup path of another type": (
+        lambda f: _study_json(f, lambda s: s["setups"].update(p0=5)), "setups.p0 = 5: expected"),
+    "an axis key of another type": (
+        lambda f: _study_json(f, lambda s: s["axes"][0].update(key=5)), "each key a string"),
+    "an axis label of another type": (
+        lambda f: _study_json(f, lambda s: s["axes"][0].update(label=5)), "label = 5: expected a string"),
+    "a target without its share": (
+        lambda f: _study_json(f, lambda s: s.update(target={"policy": "global"})),
+        "target.out_of_reach = None: expected a number in [0, 1)"),
+    "a target share as text": (
+        lambda f: _study_json(f, lambda s: s.update(target={"policy": "global", "out_of_reach": "x"})),
+        "target.out_of_reach = 'x'"),
+    "an empty axis cell": (lambda f: _results_cell(f, AXIS, ""),
+                           f"results.csv, line 2: column {AXIS}: expected the run's axis value, found ''"),
+    "a run given twice": (
+        lambda f: (f / "results.csv").write_text((f / "results.csv").read_text() +
+                                                 (f / "results.csv").read_text().splitlines()[1] + "\n"),
+        "is given twice (first on line 2)"),
+    "a capture of another size": (
+        lambda f: write_png(f / "runs" / "p0" / "tps-s0" / "closed_loop" / "img_0001.png",
+                            np.zeros((24, 40, 3), np.uint8)),
+        "img_0001.png: 40x24 pixels, expected 32x32 like"),
+}
+
+
+@pytest.mark.parametrize("case", list(HOSTILE))
+def test_a_hostile_folder_is_refused_in_one_line_naming_what_is_wrong(tmp_path, capsys, case):
+    folder = tmp_path / "s"
+    folder.mkdir()
+    make_study(folder)
+    damage, message = HOSTILE[case]
+    damage(folder)
+    assert main(["report", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("procam: error: ") and message in err, err
+    assert len(err.strip().splitlines()) == 1 and "root:" not in err
+    assert not (folder / "report.html").exists()

@@ -251,7 +251,7 @@ def figure_grid(folder: Path, rows: list[dict], point: int, stem: Path) -> tuple
     at = [r for r in at if r["setup"] == setup]
     setup_dir = _setup_dir(folder, at[0])
     try:
-        surface = read_png(surface_path(setup_dir))
+        surface = surface_path(setup_dir)
         desired_dir = frames_root(setup_dir) / TEST
     except (DatasetError, OSError):
         return None
@@ -267,14 +267,23 @@ def figure_grid(folder: Path, rows: list[dict], point: int, stem: Path) -> tuple
     cells = []
     for i in indices:
         desired = read_png(desired_dir / image_name(i))
-        unc = read_png(capture_dir(setup_dir, TEST) / image_name(i))
+
+        def like_desired(file: Path) -> np.ndarray:
+            image = read_png(file)
+            if image.shape != desired.shape:
+                raise DatasetError(f"{file}: {image.shape[1]}x{image.shape[0]} pixels, expected "
+                                   f"{desired.shape[1]}x{desired.shape[0]} like "
+                                   f"{desired_dir / image_name(i)}")
+            return image
+
+        unc = like_desired(capture_dir(setup_dir, TEST) / image_name(i))
         size = max(4, min(desired.shape[:2]) // 4)
         err = np.abs(unc.astype(np.float32) - desired.astype(np.float32)).sum(-1)
         windows = zoom_windows(err, size)
-        images = [surface, unc]
+        images = [like_desired(surface), unc]
         for run_captures, _ in runs.values():
             file = run_captures / image_name(i)
-            images.append(read_png(file) if file.is_file() else _placeholder(desired.shape[:2]))
+            images.append(like_desired(file) if file.is_file() else _placeholder(desired.shape[:2]))
         images.append(desired)
         cells.append([grid_cell(img, windows, size) for img in images])
     plt = ch.pyplot()
@@ -405,7 +414,10 @@ def _provenance(folder: Path, study: dict, rows: list[dict]) -> str:
     shown = []
     for name, path in setups.items():
         path = Path(path) if Path(path).is_absolute() else folder / path
-        body = html.escape(path.read_text()) if path.is_file() else "(no setup.toml: a dataset made elsewhere)"
+        try:
+            body = html.escape(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError):
+            body = "(no readable setup.toml: a dataset made elsewhere)"
         shown.append(f"<details><summary>{html.escape(str(name))}: {html.escape(str(path))}</summary>"
                      f"<pre>{body}</pre></details>")
     parts.append(f"<h3>Setup files ({len(setups)})</h3>" + "".join(shown))

@@ -27,6 +27,7 @@ import numpy as np
 
 from sim.errors import ProcamError
 from sim.io import atomic_write, read_json
+from sim.layout import SETUP_FILE
 
 METRICS = ("psnr", "rmse", "ssim", "deltae")
 """Surrogate metrics (π†(x̃) against x on held-out pairs); ``cl_``, ``unc_`` prefixed: the same in
@@ -107,16 +108,23 @@ def read_study(folder: Path) -> dict:
     Raises
     ------
     ProcamError
-        If the file is missing or unreadable, an axis lacks its key or values, or a key of
-        :data:`STUDY_TYPES` holds another type.
+        If the file is missing or unreadable, an axis lacks its key or values, a key of
+        :data:`STUDY_TYPES` holds another type, the target has no policy or an out-of-reach share
+        outside [0, 1), or a setup's path does not name a ``setup.toml``.
     """
     path = Path(folder) / "study.json"
     study = read_json(path, "study description")
+    if not isinstance(study, dict):
+        raise ProcamError(f"{path}: expected a JSON object")
     axes = study.get("axes", [])
-    if not isinstance(axes, list) or not all(isinstance(a, dict) and "key" in a and isinstance(
-            a.get("values"), list) for a in axes):
-        raise ProcamError(f"{path}: 'axes' must be a list of {{key, values, ...}} tables")
+    if not isinstance(axes, list) or not all(isinstance(a, dict) and isinstance(a.get("key"), str)
+                                             and isinstance(a.get("values"), list) for a in axes):
+        raise ProcamError(f"{path}: 'axes' must be a list of {{key, values, ...}} tables, each key "
+                          "a string and its values a list")
     for a in axes:
+        for text in ("label", "unit"):
+            if a.get(text) is not None and not isinstance(a[text], str):
+                raise ProcamError(f"{path}: axis {a['key']!r}: {text} = {a[text]!r}: expected a string")
         physical = a.get("physical")
         if physical is not None and not (
                 isinstance(physical, dict) and isinstance(physical.get("label"), str)
@@ -129,6 +137,17 @@ def read_study(folder: Path) -> dict:
         if study.get(key) is not None and not isinstance(study[key], kind):
             raise ProcamError(f"{path}: {key!r} = {study[key]!r}: expected a JSON "
                               f"{'object' if kind is dict else 'string'}")
+    target = study.get("target") or {}
+    if target and not isinstance(target.get("policy"), str):
+        raise ProcamError(f"{path}: target.policy = {target.get('policy')!r}: expected a string")
+    if target and target["policy"] != "none" and not (
+            is_finite(target.get("out_of_reach")) and 0 <= target["out_of_reach"] < 1):
+        raise ProcamError(f"{path}: target.out_of_reach = {target.get('out_of_reach')!r}: expected a "
+                          "number in [0, 1)")
+    for name, where in (study.get("setups") or {}).items():
+        if not isinstance(where, str) or Path(where).name != SETUP_FILE:
+            raise ProcamError(f"{path}: setups.{name} = {where!r}: expected the path of a setup "
+                              f"file named {SETUP_FILE}")
     return study
 
 
@@ -161,8 +180,9 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
     ProcamError
         If the file is missing, not UTF-8 or cut short (its last line unfinished), or a required
         column or axis column is absent, or a row has more or fewer cells than the header, or a cell of
-        ``point``, ``n_train``, ``seed`` is not an integer or of a score not a number, or a
-        ``status`` is unknown; the message names the file, the row and the column.
+        ``point``, ``n_train``, ``seed`` is not an integer, of a score not a number or of an axis
+        empty or not finite, or a ``status`` is unknown, or a run (:data:`RUN_COLUMNS`) is given
+        twice; the message names the file, the row and the column.
     """
     path = Path(path)
     reader = csv.DictReader(io.StringIO(table_text(path, "results table")))
@@ -170,7 +190,7 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
     missing = [c for c in ("point", *axes, "setup", "method", "n_train", "seed", "status") if c not in header]
     if missing:
         raise ProcamError(f"{path}: missing column(s) {', '.join(missing)}")
-    rows = []
+    rows, seen = [], {}
     for line, raw in enumerate(reader, start=2):
         if None in raw or None in raw.values():
             raise ProcamError(f"{path}, line {line}: {len(header)} columns in the header, another number "
@@ -191,9 +211,16 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
                 raise ProcamError(f"{path}, line {line}: column {key}: expected a number, found {row[key]!r}")
         for key in (a for a in axes if a not in ("point", "n_train", "seed", *SCORES)):
             row[key] = _number(raw.get(key) or "")
+            if isinstance(row[key], float) and not math.isfinite(row[key]):
+                raise ProcamError(f"{path}, line {line}: column {key}: expected the run's axis value, "
+                                  f"found {raw.get(key)!r}")
         for key in ("error", "run", "table", "variant", "target_policy"):
             row[key] = raw.get(key) or ""
         row["undertrained"] = raw.get("undertrained") == "1"
+        if _run_key(row) in seen:
+            raise ProcamError(f"{path}, line {line}: run {_run_text(row)} is given twice (first on "
+                              f"line {seen[_run_key(row)]})")
+        seen[_run_key(row)] = line
         rows.append(row)
     return rows
 
