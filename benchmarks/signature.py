@@ -145,16 +145,22 @@ def main() -> None:
                          "benchmarks/results/signature/ are on mixed frames)")
     args = ap.parse_args()
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    if not variants:
+        ap.error(f"--variants {args.variants!r}: expected some of {', '.join(VARIANTS)}")
     if unknown := [v for v in variants if v not in VARIANTS]:
         ap.error(f"--variants: {', '.join(unknown)} unknown; expected some of {', '.join(VARIANTS)}")
     names = [s.strip() for s in args.setups.split(",") if s.strip()]
-    suite = {s.name: s for s in load_setups(args.suite)}
-    if missing := [n for n in names if n not in suite]:
-        ap.error(f"--setups: {', '.join(missing)} not in the suite {args.suite}")
-    cfg = BenchConfig(profile=args.profile, methods=tuple(m.strip() for m in args.methods.split(",")),
-                      sizes=(args.n_train,), tables=("1",), size=args.size, n_test=args.n_test,
-                      test_frames=args.test_frames)
+    if not names:
+        ap.error(f"--setups {args.setups!r}: expected setups of the suite {args.suite}")
     try:
+        suite = {s.name: s for s in load_setups(args.suite)}
+        if missing := [n for n in names if n not in suite]:
+            ap.error(f"--setups: {', '.join(missing)} not in the suite {args.suite}")
+        cfg = BenchConfig(profile=args.profile, methods=tuple(m.strip() for m in args.methods.split(",")),
+                          sizes=(args.n_train,), tables=("1",), size=args.size, n_test=args.n_test,
+                          test_frames=args.test_frames)
+        if args.out.exists() and not args.out.is_dir():
+            raise ProcamError(f"--out {args.out}: a file, expected a folder")
         for variant in variants:
             if finished(args.out / variant, names, cfg, args.n_train):
                 print(f"signature: {variant}: finished in {args.out / variant}, not run again")
@@ -162,7 +168,7 @@ def main() -> None:
             run_bench(variant_setups([suite[n] for n in names], variant), args.out / variant, cfg)
         rows = [summarise(args.out, v) for v in variants]
     except ProcamError as exc:
-        ap.exit(1, f"signature: {exc}\n")
+        ap.exit(2, f"signature: {exc}\n")
     how = (f"`python benchmarks/signature.py --out OUT --suite {args.suite} --setups {','.join(names)} "
            f"--variants {','.join(variants)} --methods {','.join(cfg.methods)} --profile {args.profile}"
            + (f" --size {args.size}" if args.size else "") + f" --n-train {args.n_train}"

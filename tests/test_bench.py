@@ -3,6 +3,7 @@ uncompensated, options per method, resumable, failures kept apart."""
 from __future__ import annotations
 
 import json
+import re
 import math
 import shutil
 from pathlib import Path
@@ -252,3 +253,15 @@ def test_table2_keeps_the_official_learning_rate_step(tmp_path):
     assert steps("quick") == {"1": (500, 400, "compennet-n125-seed0"),
                               "2": (500, 800, "compennet-n32-seed0-iters500-batch32")}
     assert steps("quick", lr_step=100)["2"][1] == 100  # the user's word wins
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ({"device": "tpu"}, "device 'tpu': expected 'auto', 'cpu' or 'cuda[:N]'"),
+    ({"init": "/nowhere/run"}, "option init = '/nowhere/run': no weights there"),
+])
+def test_a_bench_that_cannot_run_is_refused_before_anything_is_rendered(overrides, message):
+    from compensation.experiments.bench import BenchConfig
+    from sim.errors import ProcamError
+
+    with pytest.raises(ProcamError, match=re.escape(message)):
+        BenchConfig(methods=("tps", "compennet"), sizes=(8,), tables=("1",), overrides=overrides)

@@ -100,3 +100,16 @@ def test_a_variant_folder_of_another_bench_is_refused_without_traceback(tmp_path
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     assert "signature: " in proc.stderr and "holds the bench 'other'" in proc.stderr
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["default", "study.json"]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--suite", "nosuch"], "signature: nosuch: no such setup file"),
+    (["--profile", "nonsense"], "signature: profile 'nonsense': choose one of"),
+    (["--methods", ","], "signature: unknown method ''"),
+    (["--variants", ","], "--variants ',': expected some of default"),
+    (["--setups", ","], "--setups ',': expected setups of the suite paper"),
+])
+def test_bad_arguments_exit_2_with_one_line(tmp_path, args, message):
+    proc = run_benchmark("signature.py", "--out", str(tmp_path / "out"), *args, cwd=tmp_path)
+    assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "out").exists()

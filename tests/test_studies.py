@@ -401,3 +401,31 @@ def test_study_keeps_raw_captures_only_when_asked(tmp_path):
     assert json.loads((setup / "meta.json").read_text())["raw"] is True
     assert len(list((setup / "cam" / "raw").rglob("*.png"))) == len(warped) == 126 + 8 + 4
     assert {p: p.read_bytes() for p in (setup / "cam" / "warp").rglob("*.png")} == warped
+
+
+def _study_file(tmp_path: Path, extra: str, size: int = 32) -> Path:
+    """A one-axis study of the default setup with ``extra`` lines appended."""
+    path = tmp_path / "hostile.toml"
+    path.write_text(f'base = "{ROOT / "scenes" / "default.toml"}"\nmethods = ["tps", "compennet"]\n'
+                    f'size = {size}\n{extra}\n[[axis]]\nkey = "ambient.radiance"\nvalues = [0.0, 0.1]\n')
+    return path
+
+
+@pytest.mark.parametrize("extra, size, message", [
+    ('profile = ["quick"]', 32, "profile = ['quick']: expected one of"),
+    ("[options]\ndevice = \"tpu\"", 32, "device 'tpu': expected 'auto', 'cpu' or 'cuda[:N]'"),
+    ("[options]\npatch = 128", 64, "option patch = 128: expected at most the images' shorter side, 64"),
+    ("[options]\ninit = \"/nowhere/run\"", 32, "option init = '/nowhere/run': no weights there"),
+    ("[options]\ninit = 5", 32, "option init = 5: expected the path of a run folder"),
+    ("[options]\namp = \"yes\"", 32, "option amp = 'yes': expected true or false"),
+    ("[options]\nseed = 5", 32, "options.seed: not a training option of a study"),
+    ("[options]\nn_train = 5", 32, "options.n_train: not a training option of a study"),
+    ('only = ["0", "typo*"]', 32, "only = typo*: matches no point number or setup"),
+    ("", 18, "size 18x18 (W x H, the study's or --size): expected sides divisible by 4"),
+])
+def test_a_study_that_cannot_run_is_refused_before_anything_is_rendered(tmp_path, extra, size, message):
+    """Each of these used to pass the study's checks and fail only when its runs were fitted,
+    after the renders (or with a traceback)."""
+    path = _study_file(tmp_path, extra, size)
+    with pytest.raises(ProcamError, match=re.escape(message)):
+        expand(load_study(path))

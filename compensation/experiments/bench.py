@@ -32,7 +32,7 @@ from compensation.experiments.executors import LocalExecutor
 from compensation.experiments.jobs import check_study_folder, simulated, write_results, write_study_record
 from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name
 from compensation.experiments.targets import TargetPolicy
-from compensation.methods import applicable, get_method, make_config
+from compensation.methods import applicable, check_runnable, get_method, make_config
 from compensation.training.config import COMMON, PROFILES
 from sim.dataset import FrameSpec
 from sim.errors import ProcamError
@@ -83,7 +83,7 @@ class BenchConfig:
                               "on its own white setup; leave Table 2 out (--tables 1,3) to initialise "
                               "every run from one run")
         for name in used:  # every value is checked before any rendering or training
-            make_config(self.profile, name, **applicable(name, self.overrides))
+            check_runnable(make_config(self.profile, name, **applicable(name, self.overrides)), None)
 
     @property
     def canonical(self) -> int:

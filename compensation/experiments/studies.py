@@ -64,7 +64,8 @@ from compensation.experiments.executors import LocalExecutor
 from compensation.experiments.jobs import check_study_folder, write_results, write_study_record
 from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name, slug
 from compensation.experiments.targets import DEFAULT_OUT_OF_REACH, TargetPolicy
-from compensation.methods import applicable, get_method, make_config, option_owners
+from compensation.methods import applicable, check_runnable, get_method, make_config, option_owners
+from compensation.methods.compennet import SIZE_MULTIPLE
 from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
 from sim.descriptors import DESCRIPTORS
@@ -83,6 +84,10 @@ AXIS_KEYS = ("key", "values", "label", "unit")
 """Keys of an ``[[axis]]`` table."""
 TRAIN_AXIS_REFUSED = ("n_test", "seed", "device", "eval_batch", "checkpoint_every")
 """Training options that cannot be an axis (seeds are their own list; the others change no score)."""
+STUDY_OWN = {"seed": "its seeds are the study's seeds list", "n_train": "give the study's n_train",
+             "n_test": "give the study's n_test"}
+"""Training values a study sets with keys of its own, refused in ``[options]``, where they would be
+overridden without a word."""
 MAX_RUNS = 10_000
 """Most runs a study expands to (points × setups × seeds × methods × training sizes): each trains a
 method, so more would not finish; the limit is checked before the runs are listed."""
@@ -242,7 +247,7 @@ def load_study(path: Path | str, profile: str | None = None) -> Study:
         raise ProcamError(f"--profile {profile!r}: expected one of {', '.join(PROFILES)}")
     overrides = {} if profile is None else {"profile": profile}
     profile = profile or data.get("profile", "quick")
-    if profile not in PROFILES:
+    if not isinstance(profile, str) or profile not in PROFILES:
         raise _error(path, "profile", profile, f"expected one of {', '.join(PROFILES)}")
     defaults = PROFILES[profile]
     for key in ("name", "question", "base"):
@@ -271,6 +276,9 @@ def load_study(path: Path | str, profile: str | None = None) -> Study:
     options = data.get("options", {})
     if not isinstance(options, dict):
         raise _error(path, "options", options, "expected a table of training options")
+    for key, where in STUDY_OWN.items():
+        if key in options:
+            raise ProcamError(f"{path}: options.{key}: not a training option of a study ({where})")
     fixed = data.get("setup", {})
     if not isinstance(fixed, dict) or "name" in fixed:
         raise _error(path, "setup", fixed, "expected a table of setup sections (without a name)")
@@ -395,7 +403,9 @@ def _train_config(study: Study, method: str, n_train: int, seed: int, point: Poi
     values = {**study.options, **_of(study, point, False), "n_train": n_train, "n_test": study.n_test,
               "seed": seed}
     try:
-        return make_config(study.profile, method, **applicable(method, values))
+        cfg = make_config(study.profile, method, **applicable(method, values))
+        check_runnable(cfg, study.size)
+        return cfg
     except ProcamError as exc:
         raise ProcamError(f"{study.path} (point {point.index}): {exc}") from None
 
@@ -414,8 +424,9 @@ def expand(study: Study) -> Plan:
     ProcamError
         If the base cannot be loaded, the study has more than :data:`MAX_RUNS` runs, a point gives
         an invalid setup (named with the study file, the point and its values), two points give
-        one setup name, an option is not taken by any of the study's methods, a training value is
-        invalid, or ``--only`` selects nothing.
+        one setup name, the size is not divisible by 4, an option is not taken by any of the
+        study's methods, a training value is invalid or cannot run here
+        (:func:`~compensation.methods.check_runnable`), or an item of ``only`` selects nothing.
     """
     try:
         bases = load_setups(base_path(study))
@@ -426,6 +437,10 @@ def expand(study: Study) -> Plan:
     if count > MAX_RUNS:  # before the runs are listed
         raise ProcamError(f"{study.path}: {count} runs (points x setups x seeds x methods x training sizes); "
                           f"expected at most {MAX_RUNS}")
+    if any(side % SIZE_MULTIPLE for side in study.size):
+        raise ProcamError(f"{study.path}: size {study.size[0]}x{study.size[1]} (W x H, the study's "
+                          f"or --size): expected sides divisible by {SIZE_MULTIPLE}, the sizes "
+                          "CompenNet takes and every method's data loader requires")
     used = set(COMMON).union(*(get_method(m).options.names() for m in study.methods))
     if unknown := sorted(set(study.options) - used):
         raise ProcamError(f"{study.path}: options.{unknown[0]}: not an option of any method of the study "
@@ -439,6 +454,7 @@ def expand(study: Study) -> Plan:
     train_axis = any(a.key == "n_train" for a in study.axes)
     setups: dict[str, Setup] = {}
     origin: dict[str, tuple] = {}
+    matched: dict[str, Point] = {}
     runs = []
     for point in points:
         for base in bases:
@@ -448,6 +464,7 @@ def expand(study: Study) -> Plan:
                 if origin.setdefault(setup.name, key) != key:
                     raise ProcamError(f"{study.path}: two points give the setup name {setup.name!r}; "
                                       "make the axis values differ in more than punctuation")
+                matched[setup.name] = point
                 if not _selected(study, point, setup.name):
                     continue
                 setups.setdefault(setup.name, setup)
@@ -460,9 +477,12 @@ def expand(study: Study) -> Plan:
                         runs.append(Run(point, setup.name, method, n, seed,
                                         _train_config(study, method, n, seed, point),
                                         f"runs/{setup.name}/{run_name(method, n, seed, varied)}"))
-    if not runs:
-        raise ProcamError(f"--only {','.join(study.only)}: matches no point number or setup of "
-                          f"{study.path} (points 0-{len(points) - 1}; setups e.g. {next(iter(origin))})")
+    unmatched = [item for item in study.only if not any(
+        item == str(p.index) or fnmatch.fnmatchcase(name, item) for name, p in matched.items())]
+    if unmatched:
+        given = "--only" if "only" in study.overrides else f"{study.path}: only ="
+        raise ProcamError(f"{given} {unmatched[0]}: matches no point number or setup of {study.path} "
+                          f"(points 0-{len(points) - 1}; setups e.g. {next(iter(origin))})")
     return Plan(points, setups, tuple(runs))
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from compensation.methods.base import Method
+from compensation.methods.base import Method, resolve_device, weights_file
 from compensation.methods.compennet import CompenNetMethod, CompenNetNoSurfMethod
 from compensation.methods.nayar import NayarMethod
 from compensation.methods.pix2pix import Pix2PixMethod
@@ -77,7 +77,7 @@ def make_config(profile: str = "paper", method: str = "compennet", **values) -> 
     common.update({k: v for k, v in values.items() if k in COMMON})
     own = {**options_cls.profiles.get(profile, {}),
            **{k: v for k, v in values.items() if k in options_cls.names()}}
-    if own.get("init"):  # recorded as an absolute path: the same run from any working directory
+    if isinstance(own.get("init"), str) and own["init"].strip():  # recorded as an absolute path: the same run from any working directory
         own["init"] = str(Path(own["init"]).resolve())
     try:
         options = options_cls(**own)
@@ -110,6 +110,36 @@ def check_config(cfg: TrainConfig) -> TrainConfig:
     if type(cfg.options) is not cls:
         raise ProcamError(f"method {cfg.method!r} takes {cls.__name__}, got {type(cfg.options).__name__}")
     return cfg
+
+
+def check_runnable(cfg: TrainConfig, size: tuple[int, int] | None) -> None:
+    """Check what a run needs beyond the ranges of its values, before anything is rendered for
+    it: a device this machine has, the weights its ``init`` option names and, where its images'
+    ``size`` (width, height) in pixels is known, a patch window within them and a size its
+    network takes.
+
+    >>> check_runnable(make_config("quick", "compennet", patch=64), (32, 32))
+    Traceback (most recent call last):
+    ...
+    sim.errors.ProcamError: option patch = 64: expected at most the images' shorter side, 32 pixels (32x32 W x H), or 0 for full images
+
+    Raises
+    ------
+    ProcamError
+        Naming the option and what was expected.
+    """
+    resolve_device(cfg.device)
+    init = getattr(cfg.options, "init", None)
+    if init is not None and not weights_file(init).is_file():
+        raise ProcamError(f"option init = {init!r}: no weights there (expected a run folder holding "
+                          f"{weights_file('').name} or a state dict file)")
+    if size is None:
+        return
+    patch = getattr(cfg.options, "patch", 0)
+    if patch > min(size):
+        raise ProcamError(f"option patch = {patch}: expected at most the images' shorter side, "
+                          f"{min(size)} pixels ({size[0]}x{size[1]} W x H), or 0 for full images")
+    get_method(cfg.method).check_image_size(*size)
 
 
 def applicable(method: str, values: dict) -> dict:

@@ -215,6 +215,11 @@ class Method(abc.ABC):
     """The method fits the 125 plain-colour pairs of ``ref`` whatever the number of training pairs
     (TPS, Nayar); its official tag then names 125."""
 
+    @classmethod
+    def check_image_size(cls, width: int, height: int) -> None:
+        """Raise :class:`ProcamError` unless the method takes ``width`` × ``height`` images
+        (pixels); every size by default."""
+
     @abc.abstractmethod
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
             checkpoint: Path | None = None) -> FitResult:

@@ -359,6 +359,8 @@ class CompenNetOptions(Options):
         self._number("weight_decay", positive=False)
         self._require("loss", self.loss in LOSSES, f"one of {', '.join(LOSSES)}")
         self._require("sampler", self.sampler in ("epoch", "random"), "'epoch' or 'random'")
+        self._require("amp", isinstance(self.amp, bool), "true or false")
+        self._optional_path("init")
         self._require("patch", isinstance(self.patch, int) and not isinstance(self.patch, bool)
                       and self.patch >= 0 and self.patch % SIZE_MULTIPLE == 0,
                       f"0 (full images) or a positive multiple of {SIZE_MULTIPLE} (pixels)")

@@ -360,6 +360,7 @@ class Pix2PixOptions(Options):
         self._positive_ints("batch")
         self._number("lr", positive=True)
         self._number("l1_weight", positive=False)
+        self._optional_path("init")
 
 
 class Pix2PixMethod(Method):
@@ -378,6 +379,12 @@ class Pix2PixMethod(Method):
     name = "pix2pix"
     official_name = "pix2pix"
     options = Pix2PixOptions
+
+    @classmethod
+    def check_image_size(cls, width: int, height: int) -> None:
+        """Raise :class:`ProcamError` unless the U-Net and PatchGAN take ``width`` × ``height``
+        images (:func:`unet_levels`)."""
+        unet_levels(height, width)
 
     def __init__(self, device: str = "auto"):
         self.device = resolve_device(device)

@@ -50,6 +50,12 @@ class Options:
         if not ok:
             raise ProcamError(f"option {name} = {getattr(self, name)!r}: expected {expected}")
 
+    def _optional_path(self, name: str) -> None:
+        """Check that the named field is None or a non-empty path text."""
+        value = getattr(self, name)
+        self._require(name, value is None or (isinstance(value, str) and value.strip() != ""),
+                      "the path of a run folder or of a state dict file")
+
     def _positive_ints(self, *names: str, most: int | None = None) -> None:
         """Check that each named field is an integer >= 1 (None allowed where typed optional), and
         at most ``most`` where given."""
