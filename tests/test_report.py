@@ -468,6 +468,13 @@ def _results_cell(folder: Path, column: str, value: str, line: int = 2) -> None:
     (folder / "results.csv").write_text("\n".join(lines) + "\n")
 
 
+def _drop_column(folder: Path, column: str) -> None:
+    lines = [line.split(",") for line in (folder / "results.csv").read_text().splitlines()]
+    gone = lines[0].index(column)
+    (folder / "results.csv").write_text("\n".join(",".join(c for i, c in enumerate(cells) if i != gone)
+                                                   for cells in lines) + "\n")
+
+
 HOSTILE = {
     "a setup outside the layout": (
         lambda f: _study_json(f, lambda s: s["setups"].update(p0="/etc/passwd")),
@@ -486,6 +493,8 @@ HOSTILE = {
         "target.out_of_reach = 'x'"),
     "an empty axis cell": (lambda f: _results_cell(f, AXIS, ""),
                            f"results.csv, line 2: column {AXIS}: expected the run's axis value, found ''"),
+    "a results table without a score": (lambda f: _drop_column(f, "psnr"),
+                                         "results.csv: missing column(s) psnr"),
     "a run given twice": (
         lambda f: (f / "results.csv").write_text((f / "results.csv").read_text() +
                                                  (f / "results.csv").read_text().splitlines()[1] + "\n"),

@@ -187,7 +187,8 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
     path = Path(path)
     reader = csv.DictReader(io.StringIO(table_text(path, "results table")))
     header = reader.fieldnames or []
-    missing = [c for c in ("point", *axes, "setup", "method", "n_train", "seed", "status") if c not in header]
+    missing = [c for c in ("point", *axes, "setup", "method", "n_train", "seed", "status", "psnr", "ssim",
+                           "deltae") if c not in header]
     if missing:
         raise ProcamError(f"{path}: missing column(s) {', '.join(missing)}")
     rows, seen = [], {}
