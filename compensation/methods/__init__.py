@@ -77,7 +77,8 @@ def make_config(profile: str = "paper", method: str = "compennet", **values) -> 
     common.update({k: v for k, v in values.items() if k in COMMON})
     own = {**options_cls.profiles.get(profile, {}),
            **{k: v for k, v in values.items() if k in options_cls.names()}}
-    if isinstance(own.get("init"), str) and own["init"].strip():  # recorded as an absolute path: the same run from any working directory
+    # init is recorded as an absolute path: the same run from any working directory
+    if isinstance(own.get("init"), str) and own["init"].strip():
         own["init"] = str(Path(own["init"]).resolve())
     try:
         options = options_cls(**own)
