@@ -31,7 +31,7 @@ import statistics
 from pathlib import Path
 
 from compensation.experiments.bench import BenchConfig, run_bench, table1_options
-from compensation.methods import get_method
+from compensation.methods import METHODS, get_method
 from compensation.reports.paired import paired_comparison, paired_differences
 from compensation.reports.summary import attach_per_image, read_results
 from compensation.reports.tables import PAPER_TABLE1
@@ -156,11 +156,17 @@ def main() -> None:
         suite = {s.name: s for s in load_setups(args.suite)}
         if missing := [n for n in names if n not in suite]:
             ap.error(f"--setups: {', '.join(missing)} not in the suite {args.suite}")
-        cfg = BenchConfig(profile=args.profile, methods=tuple(m.strip() for m in args.methods.split(",")),
+        methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+        if not methods:
+            raise ProcamError(f"--methods {args.methods!r}: expected some of {', '.join(sorted(METHODS))}")
+        cfg = BenchConfig(profile=args.profile, methods=methods,
                           sizes=(args.n_train,), tables=("1",), size=args.size, n_test=args.n_test,
                           test_frames=args.test_frames)
         if args.out.exists() and not args.out.is_dir():
             raise ProcamError(f"--out {args.out}: a file, expected a folder")
+    except ProcamError as exc:
+        ap.exit(2, f"signature: {exc}\n")
+    try:
         for variant in variants:
             if finished(args.out / variant, names, cfg, args.n_train):
                 print(f"signature: {variant}: finished in {args.out / variant}, not run again")
@@ -168,7 +174,7 @@ def main() -> None:
             run_bench(variant_setups([suite[n] for n in names], variant), args.out / variant, cfg)
         rows = [summarise(args.out, v) for v in variants]
     except ProcamError as exc:
-        ap.exit(2, f"signature: {exc}\n")
+        ap.exit(1, f"signature: {exc}\n")
     how = (f"`python benchmarks/signature.py --out OUT --suite {args.suite} --setups {','.join(names)} "
            f"--variants {','.join(variants)} --methods {','.join(cfg.methods)} --profile {args.profile}"
            + (f" --size {args.size}" if args.size else "") + f" --n-train {args.n_train}"

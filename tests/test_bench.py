@@ -3,8 +3,8 @@ uncompensated, options per method, resumable, failures kept apart."""
 from __future__ import annotations
 
 import json
-import re
 import math
+import re
 import shutil
 from pathlib import Path
 

@@ -476,7 +476,7 @@ def _drop_column(folder: Path, column: str) -> None:
 
 
 HOSTILE = {
-    "a setup outside the layout": (
+    "a setup path not naming setup.toml": (
         lambda f: _study_json(f, lambda s: s["setups"].update(p0="/etc/passwd")),
         "study.json: setups.p0 = '/etc/passwd': expected the path of a setup file named setup.toml"),
     "a setup path of another type": (
@@ -487,10 +487,13 @@ HOSTILE = {
         lambda f: _study_json(f, lambda s: s["axes"][0].update(label=5)), "label = 5: expected a string"),
     "a target without its share": (
         lambda f: _study_json(f, lambda s: s.update(target={"policy": "global"})),
-        "target.out_of_reach = None: expected a number in [0, 1)"),
+        "study.json: target {'policy': 'global'}: out of reach None: expected a fraction in [0, 1)"),
     "a target share as text": (
         lambda f: _study_json(f, lambda s: s.update(target={"policy": "global", "out_of_reach": "x"})),
-        "target.out_of_reach = 'x'"),
+        "out of reach 'x': expected a fraction"),
+    "a target of no policy": (
+        lambda f: _study_json(f, lambda s: s.update(target={"policy": "best", "out_of_reach": 0.01})),
+        "target policy 'best': expected one of"),
     "an empty axis cell": (lambda f: _results_cell(f, AXIS, ""),
                            f"results.csv, line 2: column {AXIS}: expected the run's axis value, found ''"),
     "a results table without a score": (lambda f: _drop_column(f, "psnr"),

@@ -105,7 +105,8 @@ def test_a_variant_folder_of_another_bench_is_refused_without_traceback(tmp_path
 @pytest.mark.parametrize("args, message", [
     (["--suite", "nosuch"], "signature: nosuch: no such setup file"),
     (["--profile", "nonsense"], "signature: profile 'nonsense': choose one of"),
-    (["--methods", ","], "signature: unknown method ''"),
+    (["--methods", ","], "signature: --methods ',': expected some of"),
+    (["--methods", "tps,magic"], "signature: unknown method 'magic'"),
     (["--variants", ","], "--variants ',': expected some of default"),
     (["--setups", ","], "--setups ',': expected setups of the suite paper"),
 ])

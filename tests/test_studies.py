@@ -420,7 +420,7 @@ def _study_file(tmp_path: Path, extra: str, size: int = 32) -> Path:
     ("[options]\namp = \"yes\"", 32, "option amp = 'yes': expected true or false"),
     ("[options]\nseed = 5", 32, "options.seed: not a training option of a study"),
     ("[options]\nn_train = 5", 32, "options.n_train: not a training option of a study"),
-    ('only = ["0", "typo*"]', 32, "only = typo*: matches no point number or setup"),
+    ('only = ["0", "typo*"]', 32, "hostile.toml: only = 'typo*': matches no point number or setup"),
     ("", 18, "size 18x18 (W x H, the study's or --size): expected sides divisible by 4"),
 ])
 def test_a_study_that_cannot_run_is_refused_before_anything_is_rendered(tmp_path, extra, size, message):
@@ -429,3 +429,20 @@ def test_a_study_that_cannot_run_is_refused_before_anything_is_rendered(tmp_path
     path = _study_file(tmp_path, extra, size)
     with pytest.raises(ProcamError, match=re.escape(message)):
         expand(load_study(path))
+
+
+def test_only_selects_each_point_of_a_training_axis():
+    """Points on a training axis share one setup: each is still selected by its number."""
+    study = load_study(ROOT / "scenes" / "studies" / "iterations.toml")
+    for point in range(6):
+        plan = expand(with_overrides(study, only=(str(point),)))
+        assert {r.point.index for r in plan.runs if r.method == "compennet"} == {point}
+    with pytest.raises(ProcamError, match=re.escape("iterations.toml: --only 6: matches no point number")):
+        expand(with_overrides(study, only=("0", "6")))
+
+
+def test_a_pix2pix_study_at_a_size_its_u_net_cannot_take_is_refused(tmp_path):
+    path = _study_file(tmp_path, "", size=36).read_text().replace('"compennet"', '"pix2pix"')
+    (tmp_path / "pix.toml").write_text(path)
+    with pytest.raises(ProcamError, match=re.escape("36x36 pixels: pix2pix's U-Net needs width and height")):
+        expand(load_study(tmp_path / "pix.toml"))

@@ -22,7 +22,7 @@ A study file (TOML; the shipped ones are ``scenes/studies/*.toml``)::
     projector = { focus_distance = 0.8 }
 
     [options]                       # training options, for every run whose method takes them
-    iters = 500
+    iters = 500                     #   (not seed, n_train, n_test: the study's own keys)
 
     [[axis]]                        # one or two
     key = "projector.aperture"      # a setup key "section.key", or a training option
@@ -454,7 +454,6 @@ def expand(study: Study) -> Plan:
     train_axis = any(a.key == "n_train" for a in study.axes)
     setups: dict[str, Setup] = {}
     origin: dict[str, tuple] = {}
-    matched: dict[str, Point] = {}
     runs = []
     for point in points:
         for base in bases:
@@ -464,7 +463,6 @@ def expand(study: Study) -> Plan:
                 if origin.setdefault(setup.name, key) != key:
                     raise ProcamError(f"{study.path}: two points give the setup name {setup.name!r}; "
                                       "make the axis values differ in more than punctuation")
-                matched[setup.name] = point
                 if not _selected(study, point, setup.name):
                     continue
                 setups.setdefault(setup.name, setup)
@@ -477,12 +475,12 @@ def expand(study: Study) -> Plan:
                         runs.append(Run(point, setup.name, method, n, seed,
                                         _train_config(study, method, n, seed, point),
                                         f"runs/{setup.name}/{run_name(method, n, seed, varied)}"))
-    unmatched = [item for item in study.only if not any(
-        item == str(p.index) or fnmatch.fnmatchcase(name, item) for name, p in matched.items())]
+    unmatched = [item for item in study.only if item not in {str(p.index) for p in points}
+                 and not any(fnmatch.fnmatchcase(name, item) for name in origin)]
     if unmatched:
-        given = "--only" if "only" in study.overrides else f"{study.path}: only ="
-        raise ProcamError(f"{given} {unmatched[0]}: matches no point number or setup of {study.path} "
-                          f"(points 0-{len(points) - 1}; setups e.g. {next(iter(origin))})")
+        given = f"--only {unmatched[0]}" if "only" in study.overrides else f"only = {unmatched[0]!r}"
+        raise ProcamError(f"{study.path}: {given}: matches no point number or setup (points "
+                          f"0-{len(points) - 1}; setups e.g. {next(iter(origin))})")
     return Plan(points, setups, tuple(runs))
 
 

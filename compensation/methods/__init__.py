@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from compensation.methods.base import Method, resolve_device, weights_file
+from compensation.methods.base import Method, parse_device, weights_file
 from compensation.methods.compennet import CompenNetMethod, CompenNetNoSurfMethod
 from compensation.methods.nayar import NayarMethod
 from compensation.methods.pix2pix import Pix2PixMethod
@@ -115,21 +115,22 @@ def check_config(cfg: TrainConfig) -> TrainConfig:
 
 def check_runnable(cfg: TrainConfig, size: tuple[int, int] | None) -> None:
     """Check what a run needs beyond the ranges of its values, before anything is rendered for
-    it: a device this machine has, the weights its ``init`` option names and, where its images'
-    ``size`` (width, height) in pixels is known, a patch window within them and a size its
-    network takes.
+    it: a device name torch knows (whether this machine has it is checked where the run is
+    fitted: a cluster's workers may), the weights its ``init`` option names and, where its
+    images' ``size`` (width, height) in pixels is known, a patch window within them and a size
+    its network takes.
 
-    >>> check_runnable(make_config("quick", "compennet", patch=64), (32, 32))
+    >>> check_runnable(make_config("quick", "compennet", patch=64), (32, 32))  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    sim.errors.ProcamError: option patch = 64: expected at most the images' shorter side, 32 pixels (32x32 W x H), or 0 for full images
+    sim.errors.ProcamError: option patch = 64: expected at most the images' shorter side, 32 pixels ...
 
     Raises
     ------
     ProcamError
         Naming the option and what was expected.
     """
-    resolve_device(cfg.device)
+    parse_device(cfg.device)
     init = getattr(cfg.options, "init", None)
     if init is not None and not weights_file(init).is_file():
         raise ProcamError(f"option init = {init!r}: no weights there (expected a run folder holding "

@@ -29,6 +29,26 @@ CHECKPOINT = "model.pt"
 """File name of a run's weights: a plain state dict (tensors only)."""
 
 
+def parse_device(device: str) -> torch.device | None:
+    """The torch device a name gives, None for ``"auto"``, whatever this machine has (a run sent
+    to a cluster may name a device only its workers have).
+
+    >>> parse_device("cuda:1"), parse_device("auto")
+    (device(type='cuda', index=1), None)
+
+    Raises
+    ------
+    ProcamError
+        If the name is not a torch device.
+    """
+    if device == "auto":
+        return None
+    try:
+        return torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ProcamError(f"device {device!r}: expected 'auto', 'cpu' or 'cuda[:N]'") from None
+
+
 def resolve_device(device: str) -> torch.device:
     """``"auto"`` → CUDA if available, else CPU; otherwise the named torch device.
 
@@ -37,12 +57,9 @@ def resolve_device(device: str) -> torch.device:
     ProcamError
         If the name is not a torch device, or CUDA is asked for but not available.
     """
-    if device == "auto":
+    dev = parse_device(device)
+    if dev is None:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        dev = torch.device(device)
-    except RuntimeError:
-        raise ProcamError(f"device {device!r}: expected 'auto', 'cpu' or 'cuda[:N]'") from None
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise ProcamError(f"device {device!r}: CUDA is not available in this torch build / machine")
     return dev

@@ -219,6 +219,21 @@ def _setup_dir(folder: Path, row: dict) -> Path:
     return folder / "data" / row["setup"]
 
 
+def _read_like(file: Path, like: np.ndarray, like_file: Path) -> np.ndarray:
+    """The PNG ``file``, of the size of ``like`` (read from ``like_file``).
+
+    Raises
+    ------
+    DatasetError
+        If it cannot be read or has another size; the message names both files.
+    """
+    image = read_png(file)
+    if image.shape != like.shape:
+        raise DatasetError(f"{file}: {image.shape[1]}x{image.shape[0]} pixels, expected "
+                           f"{like.shape[1]}x{like.shape[0]} like {like_file}")
+    return image
+
+
 def grid_points(rows: list[dict], study: dict) -> list[int]:
     """The points whose figure grid the page shows: along the first axis, its first, middle and last
     value (at the first value of any second axis); a bench's single point.
@@ -265,25 +280,19 @@ def figure_grid(folder: Path, rows: list[dict], point: int, stem: Path) -> tuple
         return None
     columns = ["surface s̃", "uncompensated"] + [f"{m} (n={n})" for m, (_, n) in runs.items()] + ["desired y"]
     cells = []
+    first = desired_dir / image_name(indices[0])
+    surface_image = _read_like(surface, read_png(first), first)
     for i in indices:
         desired = read_png(desired_dir / image_name(i))
-
-        def like_desired(file: Path) -> np.ndarray:
-            image = read_png(file)
-            if image.shape != desired.shape:
-                raise DatasetError(f"{file}: {image.shape[1]}x{image.shape[0]} pixels, expected "
-                                   f"{desired.shape[1]}x{desired.shape[0]} like "
-                                   f"{desired_dir / image_name(i)}")
-            return image
-
-        unc = like_desired(capture_dir(setup_dir, TEST) / image_name(i))
+        unc = _read_like(capture_dir(setup_dir, TEST) / image_name(i), desired, desired_dir / image_name(i))
         size = max(4, min(desired.shape[:2]) // 4)
         err = np.abs(unc.astype(np.float32) - desired.astype(np.float32)).sum(-1)
         windows = zoom_windows(err, size)
-        images = [like_desired(surface), unc]
+        images = [surface_image, unc]
         for run_captures, _ in runs.values():
             file = run_captures / image_name(i)
-            images.append(like_desired(file) if file.is_file() else _placeholder(desired.shape[:2]))
+            images.append(_read_like(file, desired, desired_dir / image_name(i)) if file.is_file()
+                          else _placeholder(desired.shape[:2]))
         images.append(desired)
         cells.append([grid_cell(img, windows, size) for img in images])
     plt = ch.pyplot()
@@ -416,8 +425,10 @@ def _provenance(folder: Path, study: dict, rows: list[dict]) -> str:
         path = Path(path) if Path(path).is_absolute() else folder / path
         try:
             body = html.escape(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError):
-            body = "(no readable setup.toml: a dataset made elsewhere)"
+        except UnicodeDecodeError:
+            body = "(not UTF-8 text)"
+        except OSError:
+            body = "(no setup.toml: a dataset made elsewhere)"
         shown.append(f"<details><summary>{html.escape(str(name))}: {html.escape(str(path))}</summary>"
                      f"<pre>{body}</pre></details>")
     parts.append(f"<h3>Setup files ({len(setups)})</h3>" + "".join(shown))

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from compensation.experiments.targets import TargetPolicy
 from sim.errors import ProcamError
 from sim.io import atomic_write, read_json
 from sim.layout import SETUP_FILE
@@ -109,8 +110,9 @@ def read_study(folder: Path) -> dict:
     ------
     ProcamError
         If the file is missing or unreadable, an axis lacks its key or values, a key of
-        :data:`STUDY_TYPES` holds another type, the target has no policy or an out-of-reach share
-        outside [0, 1), or a setup's path does not name a ``setup.toml``.
+        :data:`STUDY_TYPES` holds another type, the target is not a
+        :class:`~compensation.experiments.targets.TargetPolicy`, or a setup's path does not name a
+        ``setup.toml``.
     """
     path = Path(folder) / "study.json"
     study = read_json(path, "study description")
@@ -137,13 +139,11 @@ def read_study(folder: Path) -> dict:
         if study.get(key) is not None and not isinstance(study[key], kind):
             raise ProcamError(f"{path}: {key!r} = {study[key]!r}: expected a JSON "
                               f"{'object' if kind is dict else 'string'}")
-    target = study.get("target") or {}
-    if target and not isinstance(target.get("policy"), str):
-        raise ProcamError(f"{path}: target.policy = {target.get('policy')!r}: expected a string")
-    if target and target["policy"] != "none" and not (
-            is_finite(target.get("out_of_reach")) and 0 <= target["out_of_reach"] < 1):
-        raise ProcamError(f"{path}: target.out_of_reach = {target.get('out_of_reach')!r}: expected a "
-                          "number in [0, 1)")
+    if target := study.get("target"):
+        try:
+            TargetPolicy(target.get("policy"), target.get("out_of_reach"))
+        except (ProcamError, TypeError) as exc:
+            raise ProcamError(f"{path}: target {target}: {exc}") from None
     for name, where in (study.get("setups") or {}).items():
         if not isinstance(where, str) or Path(where).name != SETUP_FILE:
             raise ProcamError(f"{path}: setups.{name} = {where!r}: expected the path of a setup "
@@ -238,10 +238,10 @@ def _run_key(row: dict) -> tuple:
 def _run_text(row: dict) -> str:
     """A run's name in a message: its non-empty :data:`RUN_COLUMNS`.
 
-    >>> _run_text({"point": "0", "setup": "default", "method": "tps", "seed": "1", "table": ""})
-    'point 0, setup default, method tps, seed 1'
+    >>> _run_text({"point": 0, "setup": "default", "method": "tps", "seed": 0, "table": ""})
+    'point 0, setup default, method tps, seed 0'
     """
-    return ", ".join(f"{k} {row[k]}" for k in RUN_COLUMNS if str(row.get(k) or ""))
+    return ", ".join(f"{k} {row[k]}" for k in RUN_COLUMNS if row.get(k) not in (None, ""))
 
 
 def attach_per_image(rows: list[dict], path: Path) -> list[dict]:
