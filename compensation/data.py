@@ -205,6 +205,21 @@ def to_tensor(images: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(images).permute(0, 3, 1, 2).float().div_(255.0).contiguous()
 
 
+def read_png_like(path: Path, reference: Path, shape: tuple[int, ...]) -> np.ndarray:
+    """The PNG at ``path``, of ``shape`` (H, W, 3), the shape of the image ``reference``.
+
+    Raises
+    ------
+    DatasetError
+        If it cannot be read or its shape differs; the message names both files.
+    """
+    img = read_png(path)
+    if img.shape != shape:
+        raise DatasetError(f"{path}: {img.shape[1]}x{img.shape[0]} pixels but {reference} is "
+                           f"{shape[1]}x{shape[0]} (all images of a dataset must have one size)")
+    return img
+
+
 def _read_stack(paths: list[Path], reference: Path, shape: tuple[int, ...]) -> torch.Tensor:
     """Decode PNGs in a thread pool straight into one float32 (N, 3, H, W) tensor in [0, 1].
 
@@ -216,10 +231,7 @@ def _read_stack(paths: list[Path], reference: Path, shape: tuple[int, ...]) -> t
     out = torch.empty((len(paths), 3, shape[0], shape[1]), dtype=torch.float32)
 
     def load(i: int) -> None:
-        img = read_png(paths[i])
-        if img.shape != shape:
-            raise DatasetError(f"{paths[i]}: {img.shape[1]}x{img.shape[0]} pixels but {reference} is "
-                               f"{shape[1]}x{shape[0]} (all images of a dataset must have one size)")
+        img = read_png_like(paths[i], reference, shape)
         out[i].copy_(torch.from_numpy(img).permute(2, 0, 1)).div_(255.0)
 
     workers = max(1, min(4, os.cpu_count() or 1, len(paths)))

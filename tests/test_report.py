@@ -505,7 +505,9 @@ HOSTILE = {
     "a capture of another size": (
         lambda f: write_png(f / "runs" / "p0" / "tps-s0" / "closed_loop" / "img_0001.png",
                             np.zeros((24, 40, 3), np.uint8)),
-        "img_0001.png: 40x24 pixels, expected 32x32 like"),
+        lambda f: f"{f / 'runs' / 'p0' / 'tps-s0' / 'closed_loop' / 'img_0001.png'}: 40x24 pixels but "
+                  f"{(f / 'data' / 'test' / 'img_0001.png').resolve()} is 32x32 (all images of a dataset "
+                  "must have one size)"),
 }
 
 
@@ -516,6 +518,7 @@ def test_a_hostile_folder_is_refused_in_one_line_naming_what_is_wrong(tmp_path, 
     make_study(folder)
     damage, message = HOSTILE[case]
     damage(folder)
+    message = message(folder) if callable(message) else message
     assert main(["report", str(folder)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("procam: error: ") and message in err, err

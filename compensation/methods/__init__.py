@@ -135,13 +135,8 @@ def check_runnable(cfg: TrainConfig, size: tuple[int, int] | None) -> None:
     if init is not None and not weights_file(init).is_file():
         raise ProcamError(f"option init = {init!r}: no weights there (expected a run folder holding "
                           f"{weights_file('').name} or a state dict file)")
-    if size is None:
-        return
-    patch = getattr(cfg.options, "patch", 0)
-    if patch > min(size):
-        raise ProcamError(f"option patch = {patch}: expected at most the images' shorter side, "
-                          f"{min(size)} pixels ({size[0]}x{size[1]} W x H), or 0 for full images")
-    get_method(cfg.method).check_image_size(*size)
+    if size is not None:
+        get_method(cfg.method).check_image_size(cfg.options, *size)
 
 
 def applicable(method: str, values: dict) -> dict:

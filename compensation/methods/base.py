@@ -233,9 +233,9 @@ class Method(abc.ABC):
     (TPS, Nayar); its official tag then names 125."""
 
     @classmethod
-    def check_image_size(cls, width: int, height: int) -> None:
-        """Raise :class:`ProcamError` unless the method takes ``width`` × ``height`` images
-        (pixels); every size by default."""
+    def check_image_size(cls, options: Options, width: int, height: int) -> None:
+        """Raise :class:`ProcamError` unless the method, with ``options``, takes ``width`` ×
+        ``height`` images (pixels); every size by default."""
 
     @abc.abstractmethod
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,

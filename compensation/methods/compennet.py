@@ -385,13 +385,21 @@ class CompenNetMethod(Method):
         self.device = resolve_device(device)
         self.model: CompenNet | None = None
 
+    @classmethod
+    def check_image_size(cls, options: CompenNetOptions, width: int, height: int) -> None:
+        """Raise :class:`ProcamError` if the patch window is wider than the images' shorter side."""
+        if options.patch > min(width, height):
+            raise ProcamError(f"option patch = {options.patch}: expected at most the images' shorter "
+                              f"side, {min(width, height)} pixels ({width}x{height} W x H), or 0 for "
+                              "full images")
+
     def fit(self, data: SetupData, cfg: TrainConfig, progress: bool = True,
             checkpoint: Path | None = None) -> FitResult:
         self.device = resolve_device(cfg.device)
-        if cfg.options.patch > min(data.size):
-            raise ProcamError(f"option patch = {cfg.options.patch}: expected at most the image's "
-                              f"shorter side, {min(data.size)} pixels ({data.size[1]}x{data.size[0]}"
-                              f" W x H images in {data.name}), or 0 for full images")
+        try:
+            self.check_image_size(cfg.options, data.size[1], data.size[0])
+        except ProcamError as exc:
+            raise ProcamError(f"{data.name}: {exc}") from None
         torch.manual_seed(cfg.seed)  # He init of the new network is seeded
         model = CompenNet(surface=self.surface)
         if cfg.options.init is not None:

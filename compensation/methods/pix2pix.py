@@ -381,7 +381,7 @@ class Pix2PixMethod(Method):
     options = Pix2PixOptions
 
     @classmethod
-    def check_image_size(cls, width: int, height: int) -> None:
+    def check_image_size(cls, options: Pix2PixOptions, width: int, height: int) -> None:
         """Raise :class:`ProcamError` unless the U-Net and PatchGAN take ``width`` × ``height``
         images (:func:`unet_levels`)."""
         unet_levels(height, width)

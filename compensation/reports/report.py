@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from compensation.data import frames_root, surface_path
+from compensation.data import frames_root, read_png_like, surface_path
 from compensation.reports import charts as ch
 from compensation.experiments.closed_loop import CAPTURES_DIR
 from compensation.reports.summary import (CONFIDENCE, BREAK_GAIN_DB, OPTIMUM_MARGIN_DB, is_finite, cell_text,
@@ -219,21 +219,6 @@ def _setup_dir(folder: Path, row: dict) -> Path:
     return folder / "data" / row["setup"]
 
 
-def _read_like(file: Path, like: np.ndarray, like_file: Path) -> np.ndarray:
-    """The PNG ``file``, of the size of ``like`` (read from ``like_file``).
-
-    Raises
-    ------
-    DatasetError
-        If it cannot be read or has another size; the message names both files.
-    """
-    image = read_png(file)
-    if image.shape != like.shape:
-        raise DatasetError(f"{file}: {image.shape[1]}x{image.shape[0]} pixels, expected "
-                           f"{like.shape[1]}x{like.shape[0]} like {like_file}")
-    return image
-
-
 def grid_points(rows: list[dict], study: dict) -> list[int]:
     """The points whose figure grid the page shows: along the first axis, its first, middle and last
     value (at the first value of any second axis); a bench's single point.
@@ -280,18 +265,18 @@ def figure_grid(folder: Path, rows: list[dict], point: int, stem: Path) -> tuple
         return None
     columns = ["surface s̃", "uncompensated"] + [f"{m} (n={n})" for m, (_, n) in runs.items()] + ["desired y"]
     cells = []
-    first = desired_dir / image_name(indices[0])
-    surface_image = _read_like(surface, read_png(first), first)
-    for i in indices:
-        desired = read_png(desired_dir / image_name(i))
-        unc = _read_like(capture_dir(setup_dir, TEST) / image_name(i), desired, desired_dir / image_name(i))
+    desired_files = [desired_dir / image_name(i) for i in indices]
+    desireds = [read_png(f) for f in desired_files]
+    surface_image = read_png_like(surface, desired_files[0], desireds[0].shape)
+    for i, desired_file, desired in zip(indices, desired_files, desireds):
+        unc = read_png_like(capture_dir(setup_dir, TEST) / image_name(i), desired_file, desired.shape)
         size = max(4, min(desired.shape[:2]) // 4)
         err = np.abs(unc.astype(np.float32) - desired.astype(np.float32)).sum(-1)
         windows = zoom_windows(err, size)
         images = [surface_image, unc]
         for run_captures, _ in runs.values():
             file = run_captures / image_name(i)
-            images.append(_read_like(file, desired, desired_dir / image_name(i)) if file.is_file()
+            images.append(read_png_like(file, desired_file, desired.shape) if file.is_file()
                           else _placeholder(desired.shape[:2]))
         images.append(desired)
         cells.append([grid_cell(img, windows, size) for img in images])

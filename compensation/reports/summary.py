@@ -218,10 +218,10 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
         for key in ("error", "run", "table", "variant", "target_policy"):
             row[key] = raw.get(key) or ""
         row["undertrained"] = raw.get("undertrained") == "1"
-        if _run_key(row) in seen:
+        if (run_id := _run_key(row)) in seen:
             raise ProcamError(f"{path}, line {line}: run {_run_text(row)} is given twice (first on "
-                              f"line {seen[_run_key(row)]})")
-        seen[_run_key(row)] = line
+                              f"line {seen[run_id]})")
+        seen[run_id] = line
         rows.append(row)
     return rows
 
