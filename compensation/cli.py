@@ -660,7 +660,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
-        print(f"procam: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        why = {FileExistsError: ": expected a folder (or nothing) there, found a file",
+               NotADirectoryError: ": a part of this path is a file where a folder is expected"}
+        print(f"procam: error: {where}{exc.strerror or exc}{why.get(type(exc), '')}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("procam: interrupted; what is finished is kept: run the same command again to go on",

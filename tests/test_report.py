@@ -502,6 +502,9 @@ HOSTILE = {
         lambda f: (f / "results.csv").write_text((f / "results.csv").read_text() +
                                                  (f / "results.csv").read_text().splitlines()[1] + "\n"),
         "is given twice (first on line 2)"),
+    "a file where the charts folder goes": (
+        lambda f: (f / "charts").write_text("not a folder"),
+        lambda f: f"{f / 'charts'}: File exists: expected a folder (or nothing) there, found a file"),
     "a capture of another size": (
         lambda f: write_png(f / "runs" / "p0" / "tps-s0" / "closed_loop" / "img_0001.png",
                             np.zeros((24, 40, 3), np.uint8)),

@@ -431,6 +431,14 @@ def test_a_study_that_cannot_run_is_refused_before_anything_is_rendered(tmp_path
         expand(load_study(path))
 
 
+def test_a_study_whose_frames_cannot_be_held_names_its_file_and_writes_nothing(tmp_path, capsys):
+    path = _study_file(tmp_path, "n_test = 1000000000")
+    assert main(["study", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: projector frames:" in err and "n_test / --n-test 1000000000" in err
+    assert "GiB in memory" in err and not (tmp_path / "out").exists()
+
+
 def test_only_selects_each_point_of_a_training_axis():
     """Points on a training axis share one setup: each is still selected by its number."""
     study = load_study(ROOT / "scenes" / "studies" / "iterations.toml")

@@ -69,7 +69,7 @@ from compensation.methods.compennet import SIZE_MULTIPLE
 from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
 from sim.descriptors import DESCRIPTORS
-from sim.errors import ProcamError
+from sim.errors import DatasetError, ProcamError
 from sim.light import AXIS_SHARES, SHARE_NAMES
 from sim.options import repeated
 from sim.seeds import SEED_MAX
@@ -586,7 +586,10 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     out = Path(out)
     executor = executor or LocalExecutor()
     plan = expand(study)
-    spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size)
+    try:
+        spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size)
+    except DatasetError as e:
+        raise ProcamError(f"{study.path}: {e}") from None
     check_study_folder(out, study.name, "study")
     out.mkdir(parents=True, exist_ok=True)
     record = study_record(study, plan)
