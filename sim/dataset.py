@@ -21,7 +21,7 @@ import time
 import zipfile
 from collections import defaultdict
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import asdict, dataclass
 from importlib.metadata import version
 from pathlib import Path
@@ -650,16 +650,19 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         write_text(out / layout.SETUP_FILE, dump_setup(setup))
         try:
             return _render(out, setup, spec, frames, fidelity, spp, expected, overwrite, progress, raw)
-        except ProcamError:
+        except BaseException:  # a refusal, a crash or Ctrl-C
             if not (out / layout.RECORD_FILE).exists():  # nothing rendered: the corrected setup may start
                 (out / layout.SETUP_FILE).unlink(missing_ok=True)
+                with suppress(OSError):  # the folder, when nothing else is in it
+                    out.rmdir()
             raise
 
 
 MIN_RESPONSE = 2 / 255
 """Least mean difference (encoded units) between the captures of plain white and plain black for a
-dataset to be rendered: below two 8-bit levels the captures do not depend on the projector (no
-light reaches the camera, or every pixel clips), and no method can learn from them."""
+dataset to be rendered, on average and in each colour channel: below two 8-bit levels the captures
+(or a channel of them) do not depend on the projector (no light reaches the camera, or every pixel
+clips), and no method can learn from them."""
 
 
 class NoResponse(DatasetError):
@@ -672,15 +675,24 @@ def _check_response(sim: Simulator, ref_frames: np.ndarray, name: str) -> float:
     Raises
     ------
     NoResponse
-        If it is below :data:`MIN_RESPONSE`, with the measured contrast.
+        If it, or its mean in one colour channel, is below :data:`MIN_RESPONSE`, with the measured
+        contrast.
     """
     probe = sim.capture(np.stack([ref_frames[0], ref_frames[layout.N_PLAIN - 1]]), seeds.RESPONSE)
-    response = float((probe[1].astype(np.float64) - probe[0]).mean()) / 255
+    channels = (probe[1].astype(np.float64) - probe[0]).mean(axis=(0, 1)) / 255
+    response = float(channels.mean())
     if response < MIN_RESPONSE:
         raise NoResponse(f"setup {name!r}: the captures do not respond to the projector: plain white and "
                            f"plain black differ by {response * 255:.2f} 8-bit levels on average (at least "
                            f"{MIN_RESPONSE * 255:.0f} needed); check the projector's brightness and mixing, "
                            "the camera's exposure and the registration")
+    if (dead := [c for c, r in zip("RGB", channels) if r < MIN_RESPONSE]):
+        raise NoResponse(f"setup {name!r}: the captures' {' and '.join(dead)} channel(s) do not respond to "
+                           "the projector: plain white and plain black differ there by "
+                           + ", ".join(f"{r * 255:.2f}" for c, r in zip("RGB", channels) if c in dead)
+                           + f" 8-bit levels on average (at least {MIN_RESPONSE * 255:.0f} needed in "
+                           "each channel); check the projector's mixing, the camera's white balance "
+                           "and exposure")
     return response
 
 

@@ -142,11 +142,13 @@ class Spec:
     def value(self, value: Any) -> Any:
         """``value`` checked and converted (ints to floats where numbers are expected, lists to
         tuples); raises ValueError with :meth:`expected` or the message of :attr:`check`."""
-        numbers = [value] if self.kind == "number" else (
-            [v for v in value if _is_number(v)] if self.kind == "vector" and isinstance(value, (list, tuple)) else [])
-        if any(_is_number(v) and math.isfinite(v) and not _finite(v) for v in numbers):
+        numbers = [v for v in _entries(value, self.kind) if _is_number(v) and v == v and abs(v) != math.inf]
+        if any(abs(v) > FLOAT32_MAX for v in numbers):
             raise ValueError(f"{self.expected()}, and at most {FLOAT32_MAX:.3g} in magnitude (captures "
                              "are computed in float32)")
+        if any(0 < abs(v) < FLOAT32_TINY for v in numbers):
+            raise ValueError(f"{self.expected()}, and 0 or at least {FLOAT32_TINY:.3g} in magnitude (a "
+                             "smaller number is 0 in the float32 the captures are computed in)")
         if self.kind == "number":
             ok = _is_number(value) and _finite(value) and value in self.range
             out = float(value) if ok else None
@@ -187,12 +189,24 @@ FLOAT32_TINY = 1.1754943508222875e-38
 
 
 def _finite(value: float) -> bool:
-    """Finite in float32, the precision the renderer and the camera compute in.
+    """Finite in float32, the precision the renderer and the camera compute in (an integer of
+    any size is compared exactly, not converted).
 
-    >>> _finite(1e30), _finite(1e39), _finite(float("nan"))
-    (True, False, False)
+    >>> _finite(1e30), _finite(1e39), _finite(float("nan")), _finite(10 ** 400)
+    (True, False, False, False)
     """
-    return math.isfinite(value) and abs(value) <= FLOAT32_MAX
+    return abs(value) <= FLOAT32_MAX
+
+
+def _entries(value: Any, kind: str) -> list:
+    """The entries of a number, vector or matrix value as given (anything else: none)."""
+    if kind == "number":
+        return [value]
+    if kind == "vector" and isinstance(value, (list, tuple)):
+        return list(value)
+    if kind == "matrix" and isinstance(value, (list, tuple)):
+        return [v for row in value if isinstance(row, (list, tuple)) for v in row]
+    return []
 
 
 def _is_number(value: Any) -> bool:

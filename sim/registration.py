@@ -226,8 +226,11 @@ def estimate_homography(capture: Callable[[np.ndarray], np.ndarray], size: tuple
     lit = (white - black) > 8
     binary = np.where(lit & (norm < 0.5), 0, 255).astype(np.uint8)
     pattern_size = (squares[0] - 1, squares[1] - 1)
-    found, cam_corners = cv2.findChessboardCorners(binary, pattern_size,
-                                                   flags=cv2.CALIB_CB_ADAPTIVE_THRESH)
+    try:
+        found, cam_corners = cv2.findChessboardCorners(binary, pattern_size,
+                                                       flags=cv2.CALIB_CB_ADAPTIVE_THRESH)
+    except cv2.error:  # a camera image too small for its adaptive threshold's window
+        found = False
     if not found:
         return None
     gray = np.clip(norm * 255, 0, 255).astype(np.uint8)

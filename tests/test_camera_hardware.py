@@ -262,7 +262,7 @@ def test_exposure_rule_clips_the_documented_fraction_of_white():
     assert rule["white_clipped_fraction"] == pytest.approx(clipped, abs=1.5 / n)
     dark = camera.capture(black, replace(cfg, exposure=rule["exposure"]), np.random.default_rng(0))
     assert rule["black_zero_fraction"] == np.mean((dark == 0).all(axis=-1))
-    with pytest.raises(ValueError, match="plain white is black"):
+    with pytest.raises(SetupError, match="plain white is black"):
         camera.rule_exposure(np.zeros_like(white), black, cfg)
 
 

@@ -17,8 +17,9 @@ import pytest
 
 from compensation.cli import main
 from helpers import TINY_RENDER as ARGS
-from helpers import interrupted_render, tiny_setup_file, tiny_toml
+from helpers import interrupted_render, tiny_setup, tiny_setup_file, tiny_toml
 from sim import camera, registration
+from sim.dataset import FrameSpec
 from sim.errors import ProcamError
 from sim.io import read_png, write_png
 from sim.options import option_fields, spec_of
@@ -226,11 +227,17 @@ def _filled(spec, value):
     return [[value] * spec.length for _ in range(spec.length)] if spec.kind == "matrix" else value
 
 
-NUMBER_TRIES = {f"{section}.{key}={value:g}": (section, key, spec, extra, value)
+def _label(value) -> str:
+    """A test id for a number: ``1e+39``, or ``10**400`` for a huge integer (no float holds it)."""
+    return f"{value:g}" if isinstance(value, float) else f"10**{len(str(value)) - 1}"
+
+
+NUMBER_TRIES = {f"{section}.{key}={_label(value)}": (section, key, spec, extra, value)
                 for section, key, spec, extra in _setup_keys() if spec.kind in ("number", "vector", "matrix")
-                and not spec.integer for value in (1e39, 1e300, -1e39)}
+                and not spec.integer for value in (1e39, 1e300, -1e39, 10 ** 400, 1e-40)}
 """Every key holding numbers, at values finite in float64 but not in float32 (captures are
-computed in float32)."""
+computed in float32), an integer too large for a float (TOML integers have no limit) and a number
+that float32 rounds to 0."""
 INTEGER_TRIES = {f"{section}.{key}={value}": (section, key, spec, extra, value)
                  for section, key, spec, extra in _setup_keys() if spec.kind == "integer" or spec.integer
                  for value in (2 ** 63 - 1, -2 ** 63)}
@@ -247,19 +254,19 @@ def test_every_number_key_refuses_what_float32_or_its_range_cannot_hold(tmp_path
 
 
 CONSTANT_CAPTURES = {
-    "projector.brightness=1e-300": {"projector": {"brightness": 1e-300}},
+    "projector.brightness=1e-30": {"projector": {"brightness": 1e-30}},
     "projector.brightness=1e30": {"projector": {"brightness": 1e30}},
     "projector.mixing=1e30": {"projector": {"mixing": [[1e30, 0.0, 0.0], [0.0, 1e30, 0.0], [0.0, 0.0, 1e30]]}},
-    "camera.exposure=1e-300": {"camera": {"exposure": 1e-300}},
+    "camera.exposure=1e-30": {"camera": {"exposure": 1e-30}},
     "camera.exposure=1e30": {"camera": {"exposure": 1e30}},
-    "camera.white_balance=1e-300": {"camera": {"white_balance": [1e-300] * 3}},
+    "camera.white_balance=1e-30": {"camera": {"white_balance": [1e-30] * 3}},
     "camera.white_balance=1e30": {"camera": {"white_balance": [1e30] * 3}},
     "camera.shot_noise=1e30": {"camera": {"shot_noise": 1e30}},
     "camera.read_noise=1e30": {"camera": {"read_noise": 1e30}},
     "camera.aperture_radius=1e30": {"camera": {"aperture_radius": 1e30}},
-    "camera.focus_distance=1e-300": {"camera": {"aperture_radius": 0.01, "focus_distance": 1e-300}},
+    "camera.focus_distance=1e-30": {"camera": {"aperture_radius": 0.01, "focus_distance": 1e-30}},
     "camera.position=1e30 away": {"camera": {"position": [0.25, 0.0, 1e30]}},
-    "surface.albedo_scale=1e-300": {"surface": {"albedo_scale": 1e-300}},
+    "surface.albedo_scale=1e-30": {"surface": {"albedo_scale": 1e-30}},
     "surface.tint=0": {"surface": {"tint": [0.0] * 3}},
     "surface.size=1e30": {"surface": {"size": [1e30, 1e30]}},
     "ambient.radiance=1e30": {"ambient": {"radiance": [1e30] * 3}},
@@ -278,8 +285,42 @@ def test_captures_independent_of_the_projector_are_refused_with_the_contrast(tmp
     assert not (data / "tiny" / "meta.json").exists() and not (data / "tiny" / "setup.toml").exists()
 
 
-@pytest.mark.parametrize("projector", [{"aperture": 1e30}, {"aperture": 0.01, "focus_distance": 1e-300}],
-                         ids=["aperture=1e30", "focus_distance=1e-300"])
+DEAD_CHANNELS = {
+    "camera.white_balance red=1e-30": ({"camera": {"white_balance": [1e-30, 1.0, 1.0]}}, "R channel(s)"),
+    "projector.mixing red row 0": (
+        {"projector": {"mixing": [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]}}, "R channel(s)"),
+    "projector.mixing red=3e38": (
+        {"projector": {"mixing": [[3e38, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]}}, "R channel(s)"),
+    "camera.white_balance blue=1e30": ({"camera": {"white_balance": [1.0, 1.0, 1e30]}}, "B channel(s)"),
+}
+"""Values that leave one colour channel independent of the projector (dark, or clipped on every
+frame) while the others respond: the mean over the channels passed, and such a dataset rendered
+with exit status 0."""
+
+
+@pytest.mark.parametrize("case", DEAD_CHANNELS)
+def test_a_channel_that_does_not_respond_to_the_projector_is_refused(tmp_path, capsys, case):
+    keys, channel = DEAD_CHANNELS[case]
+    setup = tiny_setup_file(tmp_path, registration={"method": "exact"}, **keys)
+    data = tmp_path / "data"
+    _refused(capsys, ["render", str(setup), "--out", str(data), *ARGS],
+             f"setup 'tiny': the captures' {channel} do not respond to the projector", "in each channel")
+    assert not (data / "tiny").exists()
+
+
+def test_the_exposure_rule_on_a_black_white_is_refused_in_one_line(tmp_path, capsys):
+    """No light from the projector or the room: the rule has nothing to expose for (a traceback
+    before)."""
+    setup = tiny_setup_file(tmp_path, registration={"method": "exact"}, camera={"exposure_mode": "rule"},
+                            projector={"mixing": [[0.0] * 3] * 3}, ambient={"radiance": [0.0] * 3})
+    data = tmp_path / "data"
+    _refused(capsys, ["render", str(setup), "--out", str(data), *ARGS],
+             'camera.exposure_mode = "rule": the capture of plain white is black', "projector.mixing")
+    assert not (data / "tiny").exists()
+
+
+@pytest.mark.parametrize("projector", [{"aperture": 1e30}, {"aperture": 0.01, "focus_distance": 1e-30}],
+                         ids=["aperture=1e30", "focus_distance=1e-30"])
 @pytest.mark.slow
 def test_a_defocus_disk_wider_than_the_panel_is_refused_before_its_kernel(tmp_path, capsys, projector):
     """The disk kernel's size grows as the square of its diameter: a disk of 1e16 pixels is
@@ -582,9 +623,28 @@ def test_captures_that_do_not_respond_to_the_projector_are_refused(tmp_path, cap
     data = tmp_path / "data"
     _refused(capsys, ["render", str(tiny_setup_file(tmp_path, projector=projector)), "--out", str(data), *ARGS],
              "setup 'tiny': the captures do not respond to the projector", "8-bit levels on average")
-    assert not (data / "tiny" / "meta.json").exists() and not (data / "tiny" / "setup.toml").exists()
+    assert not (data / "tiny").exists()  # nothing rendered: no folder left behind
     assert main(["render", str(tiny_setup_file(tmp_path)), "--out", str(data), *ARGS]) == 0
     assert (data / "tiny" / "meta.json").is_file()
+
+
+def test_a_crash_before_the_first_capture_leaves_nothing_that_blocks_the_rerun(tmp_path, monkeypatch):
+    """Not only a refusal: any error before anything is rendered removes the setup file it wrote,
+    which used to make the rerun say that the folder holds captures of a different setup."""
+    import sim.dataset
+
+    data = tmp_path / "data"
+
+    def crash(*args, **kwargs):
+        raise RuntimeError("a crash inside the renderer")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(sim.dataset, "_render", crash)
+        with pytest.raises(RuntimeError, match="a crash inside the renderer"):
+            sim.dataset.write_setup(data, tiny_setup(), FrameSpec(2, 1, (16, 16)), progress=False)
+    assert not (data / "tiny").exists()
+    assert main(["render", str(tiny_setup_file(tmp_path, projector={"brightness": 2.0})), "--out", str(data),
+                 *ARGS]) == 0
 
 
 def test_ctrl_c_ends_with_a_line_not_a_traceback(tmp_path, capsys, monkeypatch):

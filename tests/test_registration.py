@@ -75,6 +75,16 @@ def test_homography_error_at_64px_is_a_small_fraction_of_a_pixel():
     assert check["mean_px"] < 0.1 and check["max_px"] < 0.25
 
 
+def test_a_camera_too_small_for_the_corner_finder_falls_back_to_the_exact_map():
+    """A 12 × 12 camera is below the window of OpenCV's adaptive threshold, which used to raise
+    a cv2.error (a traceback from ``procam render``): the corners count as not found."""
+    setup = tiny_setup(camera={"resolution": [12, 12]})
+    with pytest.warns(UserWarning, match="corners were not found at the canonical size 16x16"):
+        sim = Simulator(setup, (16, 16))
+    assert sim.registration.method == "exact"
+    assert sim.registration.status == "checkerboard corners not found: exact map used"
+
+
 def test_a_camera_upside_down_registers_the_right_way_up():
     """A camera turned by 180° about its axis finds the corners from the other end of the grid:
     the pattern, not symmetric under that turn, picks the order, so the homography agrees with the

@@ -7,6 +7,7 @@ import numpy as np
 from sim.camera import chain
 from sim.camera.noise import expose
 from sim.camera.response import code_thresholds, codes
+from sim.errors import SetupError
 from sim.stages import run
 
 WHITE_CLIPPED_FRACTION = 0.02
@@ -85,7 +86,7 @@ def rule_exposure(white: np.ndarray, black: np.ndarray, cfg) -> dict:
 
     Raises
     ------
-    ValueError
+    SetupError
         If plain white is black in the camera (no exposure can over-expose it).
     """
     wb = np.asarray(cfg.white_balance, np.float32)
@@ -95,8 +96,10 @@ def rule_exposure(white: np.ndarray, black: np.ndarray, cfg) -> dict:
     n = max(1, int(np.ceil(WHITE_CLIPPED_FRACTION * m.size)))
     level = float(np.partition(m, m.size - n)[m.size - n])  # the n-th brightest pixel
     if not level > 0:
-        raise ValueError("camera exposure rule: the capture of plain white is black; "
-                         "no exposure over-exposes it")
+        raise SetupError('camera.exposure_mode = "rule": the capture of plain white is black, so no '
+                         "exposure over-exposes it; expected light from the projector's white "
+                         "(projector.brightness, projector.mixing) or the room (ambient.radiance) "
+                         'that camera.white_balance keeps, or exposure_mode = "manual"')
     exposure = full / level
 
     def noiseless(x: np.ndarray) -> np.ndarray:
