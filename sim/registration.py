@@ -422,7 +422,9 @@ def register(setup: Setup, size: tuple[int, int], capture: Callable[[np.ndarray]
             raise SetupError(
                 f'setup "{setup.name}": registration.method = "homography": the checkerboard '
                 f"corners were not found in the camera's capture at the canonical size "
-                f"{size[0]}x{size[1]}; use a larger size or registration.method = \"exact\"")
+                f"{size[0]}x{size[1]} (too small for the pattern, or too little of the projector's "
+                f"light reaches the camera: projector.brightness, projector.mixing, "
+                f"camera.exposure); use a larger size or registration.method = \"exact\"")
         status = "checkerboard corners not found" + (": exact map used" if method == "homography" else "")
         if method == "homography":
             warnings.warn(f'setup "{setup.name}": registration.method = "auto": the checkerboard corners '
