@@ -101,7 +101,8 @@ class FrameSpec:
         need = frames * self.size[0] * self.size[1] * 3
         if need > (limit := _memory() // 2):
             raise DatasetError(f"projector frames: {frames} frames of {self.size[0]}x{self.size[1]} "
-                               f"(n_train / --n-train {self.n_train}, n_test / --n-test {self.n_test}, size / --size) take "
+                               f"(n_train / --n-train {self.n_train}, n_test / --n-test {self.n_test}, "
+                               "size / --size) take "
                                f"{need / 2**30:.1f} GiB in memory; at most {limit / 2**30:.1f} GiB, half "
                                "of this machine's memory, can be held")
 
