@@ -652,7 +652,8 @@ def write_setup(root: Path, setup: Setup, spec: FrameSpec, fidelity: str | None 
         try:
             return _render(out, setup, spec, frames, fidelity, spp, expected, overwrite, progress, raw)
         except BaseException:  # a refusal, a crash or Ctrl-C
-            if not (out / layout.RECORD_FILE).exists():  # nothing rendered: the corrected setup may start
+            if not (out / layout.RECORD_FILE).exists() and not (out / layout.CAM).exists():
+                # nothing rendered: the corrected setup may start
                 (out / layout.SETUP_FILE).unlink(missing_ok=True)
                 with suppress(OSError):  # the folder, when nothing else is in it
                     out.rmdir()

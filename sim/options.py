@@ -142,13 +142,15 @@ class Spec:
     def value(self, value: Any) -> Any:
         """``value`` checked and converted (ints to floats where numbers are expected, lists to
         tuples); raises ValueError with :meth:`expected` or the message of :attr:`check`."""
-        numbers = [v for v in _entries(value, self.kind) if _is_number(v) and v == v and abs(v) != math.inf]
+        numbers = [] if self.integer else [v for v in _entries(value, self.kind)
+                                           if _is_number(v) and v == v and abs(v) != math.inf]
         if any(abs(v) > FLOAT32_MAX for v in numbers):
             raise ValueError(f"{self.expected()}, and at most {FLOAT32_MAX:.3g} in magnitude (captures "
                              "are computed in float32)")
         if any(0 < abs(v) < FLOAT32_TINY for v in numbers):
-            raise ValueError(f"{self.expected()}, and 0 or at least {FLOAT32_TINY:.3g} in magnitude (a "
-                             "smaller number is 0 in the float32 the captures are computed in)")
+            least = f"{'0 or ' if 0 in self.range else ''}at least {FLOAT32_TINY:.3g}"
+            raise ValueError(f"{self.expected()}, and {least} in magnitude (a smaller number is 0 in the "
+                             "float32 the captures are computed in)")
         if self.kind == "number":
             ok = _is_number(value) and _finite(value) and value in self.range
             out = float(value) if ok else None

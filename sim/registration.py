@@ -393,7 +393,8 @@ def register(setup: Setup, size: tuple[int, int], capture: Callable[[np.ndarray]
     ``noise_rng(render.seed, REGISTRATION, REGISTRATION_JITTER)`` of :mod:`sim.seeds`) whenever the
     surface is planar or the method asks for it, so that its error is recorded even when the
     exact map is used. With ``auto``, a plane whose checkerboard corners are not found (a
-    canonical view too small for the pattern) falls back to the exact map, as its record says.
+    canonical view or a camera too small for the pattern, or too little projector light at the
+    camera) falls back to the exact map, as its record says.
 
     Parameters
     ----------
@@ -422,9 +423,10 @@ def register(setup: Setup, size: tuple[int, int], capture: Callable[[np.ndarray]
             raise SetupError(
                 f'setup "{setup.name}": registration.method = "homography": the checkerboard '
                 f"corners were not found in the camera's capture at the canonical size "
-                f"{size[0]}x{size[1]} (too small for the pattern, or too little of the projector's "
-                f"light reaches the camera: projector.brightness, projector.mixing, "
-                f"camera.exposure); use a larger size or registration.method = \"exact\"")
+                f"{size[0]}x{size[1]} (a canonical size or camera.resolution too small for the "
+                f"pattern, or too little of the projector's light at the camera: projector.brightness, "
+                f"projector.mixing, camera.exposure); use a larger size or registration.method = "
+                f"\"exact\"")
         status = "checkerboard corners not found" + (": exact map used" if method == "homography" else "")
         if method == "homography":
             warnings.warn(f'setup "{setup.name}": registration.method = "auto": the checkerboard corners '

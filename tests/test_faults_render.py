@@ -23,6 +23,7 @@ from sim.dataset import FrameSpec
 from sim.errors import ProcamError
 from sim.io import read_png, write_png
 from sim.options import option_fields, spec_of
+from sim.setup import load_setup
 from sim.setup.schema import SECTIONS
 from sim.variant import check_forced
 
@@ -628,6 +629,19 @@ def test_captures_that_do_not_respond_to_the_projector_are_refused(tmp_path, cap
     assert (data / "tiny" / "meta.json").is_file()
 
 
+@pytest.mark.parametrize("section, key, value, message", [
+    ("camera", "resolution", [10 ** 40, 10 ** 40], "camera.resolution = [10000000000000000000000000000000000000000"),
+    ("camera", "exposure", 1e-40, "and at least 1.18e-38 in magnitude"),
+    ("camera", "read_noise", 1e-40, "and 0 or at least 1.18e-38 in magnitude"),
+])
+def test_a_number_float32_cannot_hold_is_refused_in_the_terms_of_its_key(tmp_path, capsys, section, key, value,
+                                                                          message):
+    """An integer key's range speaks for it (not float32); "0 or" only where its range holds 0."""
+    setup = tiny_setup_file(tmp_path, **{section: {key: value}})
+    err = _refused(capsys, ["render", str(setup), "--out", str(tmp_path / "data"), *ARGS], message)
+    assert ("computed in" in err) == (key != "resolution")
+
+
 def test_a_crash_before_the_first_capture_leaves_nothing_that_blocks_the_rerun(tmp_path, monkeypatch):
     """Not only a refusal: any error before anything is rendered removes the setup file it wrote,
     which used to make the rerun say that the folder holds captures of a different setup."""
@@ -643,8 +657,16 @@ def test_a_crash_before_the_first_capture_leaves_nothing_that_blocks_the_rerun(t
         with pytest.raises(RuntimeError, match="a crash inside the renderer"):
             sim.dataset.write_setup(data, tiny_setup(), FrameSpec(2, 1, (16, 16)), progress=False)
     assert not (data / "tiny").exists()
-    assert main(["render", str(tiny_setup_file(tmp_path, projector={"brightness": 2.0})), "--out", str(data),
-                 *ARGS]) == 0
+    brighter = tiny_setup_file(tmp_path, projector={"brightness": 2.0})
+    assert main(["render", str(brighter), "--out", str(data), *ARGS]) == 0
+    # a folder that holds captures keeps its setup file through a crash, even without the record
+    # that folders of older versions lack
+    (data / "tiny" / "render.json").unlink()
+    with monkeypatch.context() as patch:
+        patch.setattr(sim.dataset, "_render", crash)
+        with pytest.raises(RuntimeError):
+            sim.dataset.write_setup(data, load_setup(brighter), FrameSpec(4, 1, (32, 32)), progress=False)
+    assert (data / "tiny" / "setup.toml").is_file() and (data / "tiny" / "cam").is_dir()
 
 
 def test_ctrl_c_ends_with_a_line_not_a_traceback(tmp_path, capsys, monkeypatch):
