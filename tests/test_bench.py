@@ -255,6 +255,17 @@ def test_table2_keeps_the_official_learning_rate_step(tmp_path):
     assert steps("quick", lr_step=100)["2"][1] == 100  # the user's word wins
 
 
+def test_a_bench_whose_frames_cannot_be_held_names_its_sizes_and_writes_nothing(tmp_path, capsys):
+    from compensation.cli import main
+
+    out = tmp_path / "bench"
+    assert main(["bench", "default", "--sizes", "1000000000", "--out", str(out), "--tables", "1",
+                 "--methods", "tps"]) == 2
+    err = capsys.readouterr().err
+    assert "bench --sizes 1000000000 at 64x64 with 100 test pairs: projector frames:" in err
+    assert "GiB in memory" in err and not out.exists()
+
+
 @pytest.mark.parametrize("overrides, message", [
     ({"device": "tpu"}, "device 'tpu': expected 'auto', 'cpu' or 'cuda[:N]'"),
     ({"init": "/nowhere/run"}, "option init = '/nowhere/run': no weights there"),

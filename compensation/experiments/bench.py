@@ -35,7 +35,7 @@ from compensation.experiments.targets import TargetPolicy
 from compensation.methods import applicable, check_runnable, get_method, make_config
 from compensation.training.config import COMMON, PROFILES
 from sim.dataset import FrameSpec
-from sim.errors import ProcamError
+from sim.errors import DatasetError, ProcamError
 from sim.layout import SETUP_FILE, capture_dir
 
 
@@ -260,8 +260,12 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
         setups = [s.name for s in suite]
     data_root = Path(data_root or out / "data")
     plan = bench_plan(cfg, out, suite, setups, white)
-    spec = FrameSpec(max(max(cfg.sizes), TABLE2["n_train"]), cfg.tests, (cfg.canonical,) * 2,
-                     test_frames=cfg.test_frames)
+    try:
+        spec = FrameSpec(max(max(cfg.sizes), TABLE2["n_train"]), cfg.tests, (cfg.canonical,) * 2,
+                         test_frames=cfg.test_frames)
+    except DatasetError as e:  # named in the bench's terms: its training sizes are --sizes
+        raise ProcamError(f"bench --sizes {','.join(map(str, cfg.sizes))} at {cfg.canonical}x{cfg.canonical} "
+                          f"with {cfg.tests} test pairs: {e}") from None
     scoring = Scoring(cfg.tests, cfg.closed_loop, official=True, masks=cfg.closed_loop,
                       renders_required=True, target=cfg.target)
     check_study_folder(out, out.name, "bench")
