@@ -408,7 +408,19 @@ def flat_items(options: Any) -> dict[str, Any]:
     return out
 
 
-def parse(cls: type, data: Mapping, table: Table) -> Any:
+def keys_of(cls: type) -> set[str]:
+    """Every key a table of ``cls`` takes: its fields', and those of each of its variants."""
+    keys = set()
+    for f in option_fields(cls):
+        spec = spec_of(f)
+        if spec.kind == "variant":
+            keys.update(g.name for options in spec.variants.values() for g in option_fields(options))
+        else:
+            keys.add(f.name)
+    return keys
+
+
+def parse(cls: type, data: Mapping, table: Table, elsewhere: Mapping[str, str] | None = None) -> Any:
     """An options dataclass from one table of a setup file, every key checked by its spec.
 
     Keys missing from ``data`` take the field's default (an optional key, default None, stays
@@ -424,6 +436,9 @@ def parse(cls: type, data: Mapping, table: Table) -> Any:
         The table.
     table : Table
         Where it is, for messages.
+    elsewhere : Mapping, optional
+        Keys of other tables, each to where it belongs (e.g. ``"[projector]"``): an unknown key
+        found there is pointed to it.
 
     Returns
     -------
@@ -442,11 +457,13 @@ def parse(cls: type, data: Mapping, table: Table) -> Any:
                          for value, options in spec_of(f).variants.items()}
                 for f in own if spec_of(f).kind == "variant"}
     shared = {f.name for f in own if f.name not in variants}
-    every = shared.union(*(keys for by_value in variants.values() for keys in by_value.values()))
+    every = keys_of(cls)
     section = table.key.rsplit(".", 1)[-1]
     for name in data:
         if name not in every:
-            raise table.error(name, None, f"unknown key; valid keys of [{section}]: {', '.join(sorted(every))}")
+            home = f"; {name} is a key of {elsewhere[name]}" if elsewhere and name in elsewhere else ""
+            raise table.error(name, None, f"unknown key; valid keys of [{section}]: {', '.join(sorted(every))}"
+                                          + home)
     values: dict[str, Any] = {}
     for f in own:
         spec = spec_of(f)

@@ -361,7 +361,11 @@ def test_unknown_camera_key_is_refused(tmp_path):
     path = tmp_path / "flare.toml"
     path.write_text('name = "b"\n[camera]\nflare = 0.3\n')
     with pytest.raises(SetupError, match=r"flare\.toml: camera\.flare: unknown key; valid keys of "
-                                         r"\[camera\]: adaptive_tone, aperture_radius, bayer, "):
+                                         r"\[camera\]: adaptive_tone, aperture_radius, bayer, .*; flare is a "
+                                         r"key of \[projector\]$"):
+        load_setup(path)
+    path.write_text('name = "b"\n[camera]\nflares = 0.3\n')  # a key of no section: no pointer
+    with pytest.raises(SetupError, match=r"camera\.flares: unknown key; valid keys of \[camera\]: [a-z_, ]*$"):
         load_setup(path)
 
 

@@ -22,7 +22,7 @@ from sim import images, surfaces
 from sim.errors import DatasetError, SetupError
 from sim.io import read_png
 from sim.layout import SPLITS
-from sim.options import Table, parse, shown
+from sim.options import Table, keys_of, parse, shown
 from sim.setup.schema import NAME_PATTERN, SECTIONS, AmbientConfig, Setup, SurfaceConfig, temperature_rgb
 
 
@@ -154,7 +154,9 @@ def parse_setup(mapping: Mapping, source: str = "<string>", base_dir: Path | str
         if not isinstance(data, Mapping):
             raise SetupError(f"{source}: {prefix}{section} = {shown(data)}: expected a table [{section}]")
         table = Table(source, prefix + section)
-        sections[section] = parse(cls, data, table)
+        elsewhere = {key: " and ".join(f"[{s}]" for s, c in SECTIONS.items() if s != section and key in keys_of(c))
+                     for key in data if key not in keys_of(cls)}
+        sections[section] = parse(cls, data, table, {k: v for k, v in elsewhere.items() if v})
         if section in _CROSS_CHECKS:
             sections[section] = _CROSS_CHECKS[section](sections[section], data, table, base_dir)
     setup = Setup(name=name, **sections)
