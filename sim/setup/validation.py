@@ -106,6 +106,10 @@ def _check_interreflection(setup: Setup, source: str, prefix: str) -> None:
                          "of at least 3)")
 
 
+_SECTION_KEYS = {section: keys_of(cls) for section, cls in SECTIONS.items()}
+"""Every key each section takes (its variants' included): where an unknown key of one belongs."""
+
+
 def parse_setup(mapping: Mapping, source: str = "<string>", base_dir: Path | str | None = None,
                 prefix: str = "") -> Setup:
     """Validate a setup mapping (e.g. from :func:`tomllib.load`).
@@ -154,9 +158,9 @@ def parse_setup(mapping: Mapping, source: str = "<string>", base_dir: Path | str
         if not isinstance(data, Mapping):
             raise SetupError(f"{source}: {prefix}{section} = {shown(data)}: expected a table [{section}]")
         table = Table(source, prefix + section)
-        elsewhere = {key: " and ".join(f"[{s}]" for s, c in SECTIONS.items() if s != section and key in keys_of(c))
-                     for key in data if key not in keys_of(cls)}
-        sections[section] = parse(cls, data, table, {k: v for k, v in elsewhere.items() if v})
+        homes = {key: [f"[{s}]" for s, keys in _SECTION_KEYS.items() if key in keys]
+                 for key in data if key not in _SECTION_KEYS[section]}
+        sections[section] = parse(cls, data, table, {k: " and ".join(v) for k, v in homes.items() if v})
         if section in _CROSS_CHECKS:
             sections[section] = _CROSS_CHECKS[section](sections[section], data, table, base_dir)
     setup = Setup(name=name, **sections)
