@@ -69,7 +69,7 @@ def test_a_study_shows_its_jobs_and_names_each_bar(tmp_path, capfd, monkeypatch)
     assert len(setups) == 2
     for setup in setups:
         assert f"{setup} · render" in err
-        assert f"{setup} · tps · seed 0 · fit" in err  # nayar fits without a bar
+        assert f"{setup} · tps · 125 pairs · seed 0 · fit" in err  # the plain colours; nayar: no bar
         # the baselines: the oracle's corrections and the exact optimum's evaluations
         assert re.search(rf"{setup} · oracle: 100%.*\| 8/8 ", err)
         assert f"{setup} · exact optimum" in err

@@ -521,7 +521,7 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     try:
         with faster_backward(model) if device.type == "cpu" else nullcontext():
             result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
-                                ("loss", "lr"), fit_label(data.name, cfg.method, cfg.seed), progress,
+                                ("loss", "lr"), fit_label(data.name, cfg.method, cfg.seed, len(data.train)), progress,
                                 stateful, checkpoint, cfg.checkpoint_every, opt.sampler)
     finally:
         model.to(memory_format=torch.contiguous_format)

@@ -430,7 +430,7 @@ class Pix2PixMethod(Method):
         model.train()
         stateful = {"model": model, "optimizer_g": opt_g, "optimizer_d": opt_d}
         result = train_loop(step, len(data.train), opt.batch, opt.iters, cfg.seed, device,
-                            ("l1", "G GAN", "D"), fit_label(data.name, self.name, cfg.seed), progress,
+                            ("l1", "G GAN", "D"), fit_label(data.name, self.name, cfg.seed, len(data.train)), progress,
                             stateful, checkpoint, cfg.checkpoint_every)
         disc.requires_grad_(True)
         rows = result.values

@@ -430,7 +430,7 @@ class TPSMethod(Method):
         centres = pixel_samples(pairs.captures)
         coeffs, residual, degenerate = fit_splines(centres, pixel_samples(pairs.frames), self.smoothing,
                                                    cfg.options.workers, progress,
-                                                   fit_label(data.name, self.name, cfg.seed),
+                                                   fit_label(data.name, self.name, cfg.seed, len(pairs)),
                                                    cfg.options.scale_invariant)
         seconds = time.perf_counter() - start
         self._set_state(tuple(pairs.captures.shape[-2:]), torch.from_numpy(centres),

@@ -242,14 +242,14 @@ def _load_checkpoint(path: Path, values: torch.Tensor, sampler: BatchSampler, st
     return it, float(state["seconds"])
 
 
-def fit_label(setup: str, method: str, seed: int) -> str:
-    """The label of a fit's progress bar and of its messages: the setup, method and seed it works
-    for.
+def fit_label(setup: str, method: str, seed: int, n_train: int) -> str:
+    """The label of a fit's progress bar and of its messages: the setup, method, training pairs and
+    seed it works for (a study over the training pairs fits one setup at several sizes).
 
-    >>> fit_label("light1_pos1_squares", "compennet", 0)
-    'light1_pos1_squares · compennet · seed 0 · fit'
+    >>> fit_label("light1_pos1_squares", "compennet", 0, 125)
+    'light1_pos1_squares · compennet · 125 pairs · seed 0 · fit'
     """
-    return f"{setup} · {method} · seed {seed} · fit"
+    return f"{setup} · {method} · {n_train} pairs · seed {seed} · fit"
 
 
 def train_loop(step: Callable[[torch.Tensor], torch.Tensor], n: int, batch: int, iters: int,
