@@ -350,15 +350,28 @@ def tick_labels(axis: dict, pos: dict) -> list[str]:
     >>> axis = {"values": [0.0, 0.02], "physical": {"label": "blur", "unit": "px", "values": [0.0, 0.639]}}
     >>> tick_labels(axis, {0.0: 0.0, 0.02: 0.02})
     ['0\n0', '0.02\n0.639']
+
+    An RGB value (a list in ``study.json``, its JSON text in the CSVs) finds its quantity too:
+
+    >>> axis = {"values": [[0.1, 0.1, 0.1]], "physical": {"label": "ambient", "unit": "%", "values": [4.2]}}
+    >>> tick_labels(axis, {"[0.1, 0.1, 0.1]": 0})
+    ['[0.1, 0.1, 0.1]\n4.2']
     """
-    physical = dict(zip(axis.get("values", []), (axis.get("physical") or {}).get("values", [])))
+    physical = {_tick_key(v): p for v, p in zip(axis.get("values", []),
+                                                 (axis.get("physical") or {}).get("values", []))}
     labels = []
     for value in sorted(pos, key=pos.get):
         text = f"{value:g}" if isinstance(value, (int, float)) else str(value)
-        if physical.get(value) is not None:
-            text += f"\n{physical[value]:.3g}"
+        if physical.get(_tick_key(value)) is not None:
+            text += f"\n{physical[_tick_key(value)]:.3g}"
         labels.append(text)
     return labels
+
+
+def _tick_key(value) -> float | str:
+    """An axis value as the same key whether read from ``study.json`` (numbers, lists) or from a
+    CSV cell (numbers, the JSON text of a list)."""
+    return float(value) if is_finite(value) else str(value)
 
 
 def _format_x(ax, pos: dict, numeric: bool, log_x: bool, xlabel: str, axis: dict) -> None:
