@@ -318,6 +318,21 @@ def test_render_seeds_give_each_seed_its_dataset(tmp_path):
     assert len(plan.runs) == 2 * 2 * 2  # points x methods x seeds
 
 
+def test_render_seeds_shift_the_seed_each_point_sets(tmp_path):
+    """An axis on render.seed, or [setup]'s render seed, is the seed the study's seeds shift, not
+    replaced by the base's (two points of one dataset otherwise)."""
+    (tmp_path / "base.toml").write_text(BASE.replace("[render]", "[render]\nseed = 5"))
+    axis = STUDY.split("[[axis]]")[0].replace("seeds = [0]", "seeds = [0, 2]\nrender_seeds = true")
+    (tmp_path / "s.toml").write_text(axis + '[[axis]]\nkey = "render.seed"\nvalues = [1, 7]\n')
+    plan = expand(load_study(tmp_path / "s.toml"))
+    assert {name: s.render.seed for name, s in plan.setups.items()} == {
+        f"base__render-seed-{v}__seed{k}": v + k for v in (1, 7) for k in (0, 2)}
+    (tmp_path / "s.toml").write_text(STUDY.replace("seeds = [0]", "seeds = [0, 2]\nrender_seeds = true")
+                                     + "\n[setup]\nrender = { seed = 10 }\n")
+    plan = expand(load_study(tmp_path / "s.toml"))
+    assert sorted({s.render.seed for s in plan.setups.values()}) == [10, 12]
+
+
 @pytest.mark.slow
 def test_provenance_names_the_source_revision(tmp_path):
     """In a git checkout the source is its commit; a copy of the sources outside any checkout is

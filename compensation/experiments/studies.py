@@ -41,7 +41,8 @@ its values. Two axes make the grid of their values (the *points*, numbered from 
 The seed of a row is the training seed (:attr:`~compensation.training.config.TrainConfig.seed`:
 initialisation, batch order, sampling); every seed shares one rendered dataset per point, so the
 spread over seeds is the methods' own. With ``render_seeds = true`` the seed also shifts
-``render.seed`` (the Mitsuba sampler and the camera noise: base seed + seed) and each seed gets
+``render.seed`` (the Mitsuba sampler and the camera noise: the point's render seed, from the base,
+``[setup]`` or an axis, + seed) and each seed gets
 its own dataset, so the spread includes the capture noise.
 
 :func:`run_study` expands a study into jobs (:mod:`compensation.experiments.jobs`): render each
@@ -391,10 +392,13 @@ def _point_setup(study: Study, base: Setup, point: Point, seed: int | None) -> S
         if key in triples and isinstance(value, (int, float)) and not isinstance(value, bool):
             value = [value] * 3
         override.setdefault(section, {})[leaf] = value
-    if seed is not None:
-        override.setdefault("render", {})["seed"] = base.render.seed + seed
+    mapping = merge_setup(merge_setup(tomllib.loads(dump_setup(base)), study.setup), override)
+    if seed is not None:  # shifts the point's own render seed: the base's, [setup]'s or the axis's
+        render = mapping.setdefault("render", {})
+        own = render.get("seed", base.render.seed)  # not an integer: parse_setup refuses it by key
+        render["seed"] = own + seed if isinstance(own, int) and not isinstance(own, bool) else own
         name += f"__seed{seed}"
-    mapping = merge_setup(merge_setup(tomllib.loads(dump_setup(base)), study.setup), {**override, "name": name})
+    mapping["name"] = name
     shown = ", ".join(f"{k} = {v!r}" for k, v in _of(study, point, True).items())
     return parse_setup(mapping, f"{study.path} (point {point.index}: {shown})", study.path.parent)
 
