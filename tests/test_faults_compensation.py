@@ -458,6 +458,9 @@ BENCH_DAMAGES = {
     "bench.json config a list": ('{"config": []}', GOOD_PER_SETUP, None, "bench"),
     "failures.json without setup": ("{}", GOOD_PER_SETUP, '{"failures": [{"table": "1"}]}', "bench"),
     "failures.json a number": ("{}", GOOD_PER_SETUP, '{"failures": 3}', "bench"),
+    **{f"failures.json {key} {value}": ("{}", GOOD_PER_SETUP, json.dumps({"failures": [
+        {"table": "1", "setup": "synth", "method": "compennet", "n_train": 8, key: value}]}), "bench")
+       for key, value in (("n_train", "eight"), ("n_train", [8]), ("setup", 5), ("method", None))},
     "failures.json not UTF-8": ("{}", GOOD_PER_SETUP, '{"failures": "caf\xe9"}', "failures.json"),
 }
 """Damaged records of a bench folder written before results.csv: bench.json, per_setup.csv and

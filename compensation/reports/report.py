@@ -96,8 +96,10 @@ def _bench_record(folder: Path, bench: dict, table: list[dict]) -> tuple[dict, l
     for failure in read_json(folder / "failures.json", "bench failures").get("failures", []) \
             if (folder / "failures.json").is_file() else []:
         if failure.get("table") == "1":
+            if not all(isinstance(failure.get(k), str) for k in ("setup", "method")):
+                raise TypeError(f"a failure's setup and method are not text: {failure}")
             rows.append({"point": 0, "setup": failure["setup"], "method": failure["method"],
-                         "n_train": failure["n_train"], "seed": 0, "status": "failed",
+                         "n_train": int(failure["n_train"]), "seed": 0, "status": "failed",
                          "error": failure.get("error", ""), "run": ""})
     study = {"name": folder.name, "kind": "bench", "axes": [], "methods": cfg.get("methods", []),
              "seeds": [cfg.get("overrides", {}).get("seed", 0)], "n_train": cfg.get("sizes"),
