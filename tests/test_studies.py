@@ -164,6 +164,10 @@ def test_training_axis_shares_runs_of_methods_without_the_option():
     ('key = "seed"\nvalues = [1, 2]', r"study\.toml: axis\[0\]\.key = 'seed': not a study axis"),
     ('key = "smoothing"\nvalues = [0.1]', r"study\.toml: axis 'smoothing': not an option of any method"),
     ('key = "ambient.radiance"\nvalues = [1, 1.0]', r"axis\[0\]\.values = \[1, 1\.0\]: expected distinct values"),
+    # one setup twice: a number on a triple key is its triple; results.csv tells 6 digits apart
+    ('key = "ambient.radiance"\nvalues = [[0.1, 0.1, 0.1], 0.1]', r"\.values = .*: expected distinct values"),
+    ('key = "projector.aperture"\nvalues = [0.0, -0.0]', r"\.values = \[0\.0, -0\.0\]: expected distinct"),
+    ('key = "camera.read_noise"\nvalues = [0.1234567, 0.1234568]', r"6 significant digits"),
 ])
 def test_bad_axes_are_named(tmp_path, capsys, axis, message):
     (tmp_path / "base.toml").write_text(BASE)

@@ -175,15 +175,18 @@ def _size(path: Path, value) -> tuple[int, int]:
 
 
 def _distinct(value) -> str:
-    """What makes two axis values the same point: numbers by value, anything else as written.
+    """What makes two axis values the same point: numbers by value as ``results.csv`` writes them
+    (6 significant digits; 0 and -0 are one), anything else as written.
 
     >>> _distinct(1) == _distinct(1.0), _distinct(True) == _distinct(1), _distinct([1, 2]) == _distinct([1.0, 2])
     (True, False, True)
+    >>> _distinct(0.1234567) == _distinct(0.1234568), _distinct(-0.0) == _distinct(0)
+    (True, True)
     """
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_distinct(v) for v in value) + "]"
     if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return repr(float(value))
+        return repr(float(f"{float(value):.6g}") + 0.0)
     return repr(value)
 
 
@@ -198,8 +201,11 @@ def _axis(path: Path, i: int, table) -> Axis:
         raise _error(path, f"{where}.key", key, "expected a setup key 'section.key' or a training option")
     if not isinstance(values, list) or not values:
         raise _error(path, f"{where}.values", values, "expected a non-empty list")
-    if len({_distinct(v) for v in values}) < len(values):
-        raise _error(path, f"{where}.values", values, "expected distinct values (1 and 1.0 are one)")
+    broadcast = key in _triple_keys()  # a number there is the triple of it: 0.1 is [0.1, 0.1, 0.1]
+    if len({_distinct([v] * 3 if broadcast and isinstance(v, (int, float)) else v)
+            for v in values}) < len(values):
+        raise _error(path, f"{where}.values", values, "expected distinct values (1 and 1.0 are one, "
+                     "and so are values equal to 6 significant digits, as results.csv writes them)")
     if "." in key:
         section = key.split(".", 1)[0]
         if section not in SECTIONS:
