@@ -496,6 +496,21 @@ HOSTILE = {
         "target policy 'best': expected one of"),
     "an empty axis cell": (lambda f: _results_cell(f, AXIS, ""),
                            f"results.csv, line 2: column {AXIS}: expected the run's axis value, found ''"),
+    "an axis value the study does not list": (
+        lambda f: _results_cell(f, AXIS, "0.5"),
+        f"results.csv, line 2: column {AXIS}: 0.5 is not one of the study's values (0.0, 1.0, 2.0; study.json)"),
+    "a point given other axis values": (  # line 2 is point 0 at 0.0; point 0 again, at 1.0
+        lambda f: _results_cell(f, AXIS, "1.0", line=3),
+        f"results.csv, line 3: point 0 ({AXIS} = 1.0): line 2 gives this point other axis values"),
+    "axis values given as two points": (
+        lambda f: _results_cell(f, "point", "1"),
+        f"results.csv, line 3: point 0 ({AXIS} = 0.0): line 2 gives these axis values as point 1"),
+    "a run ok without a score": (
+        lambda f: (_results_cell(f, "psnr", ""), _results_cell(f, "cl_psnr", "")),
+        "results.csv, line 2: status ok but column psnr holds no finite number ('')"),
+    "a run ok with an infinite score": (
+        lambda f: _results_cell(f, "cl_psnr", "inf"),
+        "results.csv, line 2: status ok but column cl_psnr holds no finite number ('inf')"),
     "a results table without a score": (lambda f: _drop_column(f, "psnr"),
                                          "results.csv: missing column(s) psnr"),
     "a run given twice": (

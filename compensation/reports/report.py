@@ -122,7 +122,8 @@ def load_folder(folder: Path) -> tuple[dict, list[dict]]:
         raise ProcamError(f"{folder}: folder not found")
     if (folder / "study.json").is_file():
         study = read_study(folder)
-        return study, attach_per_image(read_results(folder / "results.csv", axis_keys(study)),
+        listed = {a["key"]: a["values"] for a in study["axes"]}
+        return study, attach_per_image(read_results(folder / "results.csv", axis_keys(study), listed),
                                        folder / "per_image.csv")
     if (folder / "per_setup.csv").is_file() and (folder / "bench.json").is_file():
         return _bench_rows(folder)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 from pathlib import Path
 
@@ -171,9 +172,12 @@ def table_text(path: Path, what: str) -> str:
     return text
 
 
-def read_results(path: Path, axes: list[str]) -> list[dict]:
+def read_results(path: Path, axes: list[str], listed: dict[str, list] | None = None) -> list[dict]:
     """Read ``results.csv``: ``point``, ``n_train`` and ``seed`` as int, scores as float (NaN for
     an empty cell), axis values as float where numeric, every other cell as text.
+
+    ``listed``: the values ``study.json`` gives each axis, where the rows' values are checked
+    against them.
 
     Raises
     ------
@@ -181,8 +185,10 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
         If the file is missing, not UTF-8 or cut short (its last line unfinished), or a required
         column or axis column is absent, or a row has more or fewer cells than the header, or a cell of
         ``point``, ``n_train``, ``seed`` is not an integer, of a score not a number or of an axis
-        empty or not finite, or a ``status`` is unknown, or a run (:data:`RUN_COLUMNS`) is given
-        twice; the message names the file, the row and the column.
+        empty or not finite (or not one of ``listed``), or a ``status`` is unknown, or a run
+        (:data:`RUN_COLUMNS`) is given twice, or an ``ok`` run lacks a finite PSNR, SSIM or ΔE, or
+        one point has two sets of axis values or two points one; the message names the file, the
+        row and the column.
     """
     path = Path(path)
     reader = csv.DictReader(io.StringIO(table_text(path, "results table")))
@@ -191,7 +197,7 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
                            "deltae") if c not in header]
     if missing:
         raise ProcamError(f"{path}: missing column(s) {', '.join(missing)}")
-    rows, seen = [], {}
+    rows, seen, points = [], {}, {}
     for line, raw in enumerate(reader, start=2):
         if None in raw or None in raw.values():
             raise ProcamError(f"{path}, line {line}: {len(header)} columns in the header, another number "
@@ -222,8 +228,57 @@ def read_results(path: Path, axes: list[str]) -> list[dict]:
             raise ProcamError(f"{path}, line {line}: run {_run_text(row)} is given twice (first on "
                               f"line {seen[run_id]})")
         seen[run_id] = line
+        if row["status"] == "ok" and (bad := _missing_scores(row)):
+            raise ProcamError(f"{path}, line {line}: status ok but column {bad} holds no finite number "
+                              f"({raw.get(bad)!r}); a run without its scores is failed or nan")
+        _check_point(path, line, row, axes, listed or {}, points)
         rows.append(row)
     return rows
+
+
+def _missing_scores(row: dict) -> str:
+    """The score column that makes an ``ok`` row's scores incomplete: one that is infinite, or the
+    PSNR where neither the surrogate nor the closed loop has one; empty where none.
+
+    >>> _missing_scores({"psnr": float("nan"), "cl_psnr": 20.0}), _missing_scores({"psnr": float("inf")})
+    ('', 'psnr')
+    """
+    if inf := [k for k in SCORES if isinstance(row.get(k), float) and math.isinf(row[k])]:
+        return inf[0]
+    return "" if any(is_finite(row.get(k)) for k in ("psnr", "cl_psnr")) else "psnr"
+
+
+def _same(value) -> str:
+    """An axis value as ``study.json`` and ``results.csv`` both name it: a number to the 6
+    significant digits the CSV keeps, a list as its JSON text, anything else as text.
+
+    >>> _same(0.1234567) == _same("0.123457"), _same(-0.0) == _same(0), _same([0.1, 1]) == _same("[0.1, 1]")
+    (True, True, True)
+    """
+    if isinstance(value, str):
+        value = _number(value)
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return repr(float(f"{float(value):.6g}") + 0.0)
+    return json.dumps(value) if isinstance(value, (list, tuple)) else str(value)
+
+
+def _check_point(path: Path, line: int, row: dict, axes: list[str], listed: dict[str, list],
+                 points: dict) -> None:
+    """Refuse a row whose axis values are not the study's, or disagree with its point's: one
+    point, one set of values (``points``: what each point and each set of values was first
+    given as, updated)."""
+    for key in axes:
+        if key in listed and _same(row[key]) not in {_same(v) for v in listed[key]}:
+            raise ProcamError(f"{path}, line {line}: column {key}: {row[key]!r} is not one of the "
+                              f"study's values ({', '.join(map(str, listed[key]))}; study.json)")
+    values = tuple(_same(row[key]) for key in axes)
+    shown = f"point {row['point']} ({', '.join(f'{k} = {row[k]}' for k in axes) or 'no axis'})"
+    if points.setdefault(("point", row["point"]), (values, line))[0] != values:
+        raise ProcamError(f"{path}, line {line}: {shown}: line {points[('point', row['point'])][1]} "
+                          "gives this point other axis values")
+    if points.setdefault(("values", values), (row["point"], line))[0] != row["point"]:
+        first, at = points[("values", values)]
+        raise ProcamError(f"{path}, line {line}: {shown}: line {at} gives these axis values as point {first}")
 
 
 RUN_COLUMNS = ("point", "setup", "method", "n_train", "seed", "table", "variant")
