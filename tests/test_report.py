@@ -377,6 +377,9 @@ def test_bench_results_with_tables(tmp_path):
     body += [line.replace(",tps,", ",compennet,").replace(",ok,", ",failed,") + ",3,compennet-n8-l1"
              for line in text[1:3]]
     (folder / "results.csv").write_text("\n".join([head, *body]) + "\n")
+    images = (folder / "per_image.csv").read_text().splitlines()
+    (folder / "per_image.csv").write_text("\n".join([images[0] + ",table,variant",
+                                                     *(line + ",1,v" for line in images[1:])]) + "\n")
     build_report(folder)
     summary = csv_rows(folder / "summary.csv")
     assert len(summary) == 9 and all(r["runs"] == "2" for r in summary if r["method"] == "compennet")
@@ -459,13 +462,13 @@ def _study_json(folder: Path, change) -> None:
     (folder / "study.json").write_text(json.dumps(study))
 
 
-def _results_cell(folder: Path, column: str, value: str, line: int = 2) -> None:
-    lines = (folder / "results.csv").read_text().splitlines()
+def _results_cell(folder: Path, column: str, value: str, line: int = 2, name: str = "results.csv") -> None:
+    lines = (folder / name).read_text().splitlines()
     header = lines[0].split(",")
     cells = lines[line - 1].split(",")
     cells[header.index(column)] = value
     lines[line - 1] = ",".join(cells)
-    (folder / "results.csv").write_text("\n".join(lines) + "\n")
+    (folder / name).write_text("\n".join(lines) + "\n")
 
 
 def _drop_column(folder: Path, column: str) -> None:
@@ -511,6 +514,15 @@ HOSTILE = {
     "a run ok with an infinite score": (
         lambda f: _results_cell(f, "cl_psnr", "inf"),
         "results.csv, line 2: status ok but column cl_psnr holds no finite number ('inf')"),
+    "a per-image run results.csv does not hold": (
+        lambda f: _results_cell(f, "n_train", "eight", name="per_image.csv"),
+        "per_image.csv, line 2: run point 0, setup p0, method tps, n_train eight, seed 0 is not a run of "
+        "results.csv"),
+    "a per-image row cut short": (
+        lambda f: (f / "per_image.csv").write_text(
+            "\n".join(t if i != 1 else t.rsplit(",", 1)[0] for i, t in
+                      enumerate((f / "per_image.csv").read_text().splitlines())) + "\n"),
+        "per_image.csv, line 2: 12 columns in the header, another number in this row"),
     "a results table without a score": (lambda f: _drop_column(f, "psnr"),
                                          "results.csv: missing column(s) psnr"),
     "a run given twice": (

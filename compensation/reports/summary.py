@@ -308,8 +308,9 @@ def attach_per_image(rows: list[dict], path: Path) -> list[dict]:
     Raises
     ------
     ProcamError
-        If the file is not UTF-8 or cut short, lacks a column it is joined by, a score cell is not
-        a number, or a run's images are not numbered 1 to N each once.
+        If the file is not UTF-8 or cut short, lacks a column it is joined by, a row has more or
+        fewer cells than the header, names a run ``rows`` do not hold, a score cell is not a
+        number, or a run's images are not numbered 1 to N each once.
     """
     path = Path(path)
     if not path.is_file():
@@ -321,7 +322,13 @@ def attach_per_image(rows: list[dict], path: Path) -> list[dict]:
         raise ProcamError(f"{path}: missing column(s) {', '.join(missing)}")
     scores = [c for c in reader.fieldnames if c.endswith("psnr")]
     images: dict[tuple, dict[int, dict]] = {}
+    known = {_run_key(r) for r in rows}
     for line, raw in enumerate(reader, start=2):
+        if None in raw or None in raw.values():
+            raise ProcamError(f"{path}, line {line}: {len(reader.fieldnames)} columns in the header, "
+                              "another number in this row")
+        if _run_key(raw) not in known:
+            raise ProcamError(f"{path}, line {line}: run {_run_text(raw)} is not a run of results.csv")
         try:
             image = int(raw["image"] or "")
         except ValueError:
