@@ -458,6 +458,9 @@ BENCH_DAMAGES = {
     "bench.json config a list": ('{"config": []}', GOOD_PER_SETUP, None, "bench"),
     "failures.json without setup": ("{}", GOOD_PER_SETUP, '{"failures": [{"table": "1"}]}', "bench"),
     "failures.json a number": ("{}", GOOD_PER_SETUP, '{"failures": 3}', "bench"),
+    "per_setup.csv header only": ("{}", GOOD_PER_SETUP.splitlines()[0] + "\n", None, "per_setup.csv"),
+    "per_setup.csv a row twice": ("{}", GOOD_PER_SETUP + GOOD_PER_SETUP.splitlines()[1] + "\n", None,
+                                  "per_setup.csv"),
     **{f"failures.json {key} {value}": ("{}", GOOD_PER_SETUP, json.dumps({"failures": [
         {"table": "1", "setup": "synth", "method": "compennet", "n_train": 8, key: value}]}), "bench")
        for key, value in (("n_train", "eight"), ("n_train", [8]), ("setup", 5), ("method", None))},

@@ -57,8 +57,18 @@ def _bench_rows(folder: Path) -> tuple[dict, list[dict]]:
     the uncompensated closed loop, the oracle and the optimum from ``bench.json``."""
     bench = read_json(folder / "bench.json", "bench record")
     table = list(csv.DictReader(io.StringIO(table_text(folder / "per_setup.csv", "bench table"))))
-    if table and (missing := [c for c in ("table", "setup", "method", "n_train") if c not in table[0]]):
+    if not any(r.get("table") == "1" for r in table):
+        raise ProcamError(f"{folder / 'per_setup.csv'}: holds no row of Table 1 (a bench writes one per "
+                          "setup and method)")
+    if missing := [c for c in ("table", "setup", "method", "n_train") if c not in table[0]]:
         raise ProcamError(f"{folder / 'per_setup.csv'}: missing column(s) {', '.join(missing)}")
+    seen: dict[tuple, int] = {}
+    for line, r in enumerate(table, start=2):
+        run = tuple(r.get(k) for k in ("table", "setup", "method", "n_train", "loss", "init", "seed"))
+        if seen.setdefault(run, line) != line:
+            raise ProcamError(f"{folder / 'per_setup.csv'}, line {line}: table {r['table']}, setup "
+                              f"{r['setup']}, method {r['method']}, n_train {r['n_train']} is given twice "
+                              f"(first on line {seen[run]})")
     try:
         return _bench_record(folder, bench, table)
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
