@@ -440,6 +440,12 @@ def _study_file(tmp_path: Path, extra: str, size: int = 32) -> Path:
     ("[options]\nseed = 5", 32, "options.seed: not a training option of a study"),
     ("[options]\nn_train = 5", 32, "options.n_train: not a training option of a study"),
     ('only = ["0", "typo*"]', 32, "hostile.toml: only = 'typo*': matches no point number or setup"),
+    # one value given twice: the axis would replace the other without a word
+    ("[setup]\nambient = { radiance = [0.1, 0.1, 0.1] }", 32,
+     "hostile.toml: setup.ambient.radiance: also given by the axis on ambient.radiance"),
+    ("[setup]\nambient = { intensity = 0.5 }", 32,
+     "setup.ambient.intensity: the room light is given as intensity and temperature or as radiance"),
+    ('target_policy = "none"\nout_of_reach = 0.05', 32, "out_of_reach: the target policy 'none' maps no target"),
     ("", 18, "size 18x18 (W x H, the study's or --size): expected sides divisible by 4"),
 ])
 def test_a_study_that_cannot_run_is_refused_before_anything_is_rendered(tmp_path, extra, size, message):
@@ -448,6 +454,16 @@ def test_a_study_that_cannot_run_is_refused_before_anything_is_rendered(tmp_path
     path = _study_file(tmp_path, extra, size)
     with pytest.raises(ProcamError, match=re.escape(message)):
         expand(load_study(path))
+
+
+@pytest.mark.parametrize("axis, top, tail, where", [
+    ("iters", "", "[options]\niters = 5", "options.iters"), ("n_train", "n_train = [8, 16]", "", "n_train")])
+def test_a_training_value_given_as_an_axis_and_again_is_refused(tmp_path, axis, top, tail, where):
+    path = tmp_path / "twice.toml"
+    path.write_text(f'base = "{ROOT / "scenes" / "default.toml"}"\nmethods = ["compennet"]\n'
+                    f'{top}\n[[axis]]\nkey = "{axis}"\nvalues = [8, 16]\n{tail}\n')
+    with pytest.raises(ProcamError, match=re.escape(f"twice.toml: {where}: also given by the axis on {axis}")):
+        load_study(path)
 
 
 def test_a_study_whose_frames_cannot_be_held_names_its_file_and_writes_nothing(tmp_path, capsys):

@@ -289,6 +289,7 @@ def load_study(path: Path | str, profile: str | None = None) -> Study:
     fixed = data.get("setup", {})
     if not isinstance(fixed, dict) or "name" in fixed:
         raise _error(path, "setup", fixed, "expected a table of setup sections (without a name)")
+    _given_once(path, axes, data, options, fixed)
     for key in ("render_seeds", "closed_loop", "raw"):
         if key in data and not isinstance(data[key], bool):
             raise _error(path, key, data[key], "expected true or false")
@@ -309,6 +310,39 @@ def load_study(path: Path | str, profile: str | None = None) -> Study:
         render_seeds=data.get("render_seeds", False), setup=dict(fixed), options=dict(options),
         only=tuple(o.strip() for o in only), target=target, closed_loop=data.get("closed_loop", True),
         raw=data.get("raw", False), overrides=overrides)
+
+
+AMBIENT_FORMS = ({"radiance"}, {"temperature", "intensity"})
+"""The two forms of the room light; a setup gives one (:func:`~sim.setup.suites.merge_setup`)."""
+
+
+def _given_once(path: Path, axes: tuple[Axis, ...], data: dict, options: dict, fixed: dict) -> None:
+    """Refuse a value the study file gives twice, once as an axis and once more (its sizes,
+    ``[options]``, ``[setup]``, the other form of the room light), where the axis would replace
+    the other without a word; and a share out of reach for the target policy that takes none."""
+    def twice(where: str, key: str) -> ProcamError:
+        return ProcamError(f"{path}: {where}: also given by the axis on {key}, whose values replace it; "
+                           "give it once")
+
+    for key in (a.key for a in axes):
+        if key == "n_train" and "n_train" in data:
+            raise twice("n_train", key)
+        if key in options:
+            raise twice(f"options.{key}", key)
+        section, _, leaf = key.partition(".")
+        table = fixed.get(section)
+        if leaf and isinstance(table, dict):
+            if leaf in table:
+                raise twice(f"setup.{section}.{leaf}", key)
+            if section == "ambient" and leaf in set.union(*AMBIENT_FORMS):
+                other = next(f for f in AMBIENT_FORMS if leaf not in f)
+                if given := sorted(other & set(table)):
+                    raise ProcamError(f"{path}: setup.ambient.{given[0]}: the room light is given as "
+                                      f"{' and '.join(sorted(other))} or as radiance, and the axis on "
+                                      f"{key} gives the other form, which drops it; give one form")
+    if data.get("target_policy") == "none" and "out_of_reach" in data:
+        raise ProcamError(f"{path}: out_of_reach: the target policy 'none' maps no target and leaves no "
+                          "share out of reach; give it with 'global' or 'image'")
 
 
 def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: tuple[int, ...] | None = None,
