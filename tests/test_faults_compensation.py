@@ -333,6 +333,7 @@ STUDY_TRIES = {
     "--seeds 2**70": (["--seeds", str(2 ** 70)], ["--seeds", "at most 10000"]),
     "--seeds 10**9": (["--seeds", str(10 ** 9)], ["--seeds 1000000000", "at most 10000"]),
     "--size 100000": (["--size", "100000"], ["--size", "100000", "<= 4096"]),
+    "--size 4": (["--size", "4"], ["--size 4x4: expected sides of at least 8 pixels"]),
     "--n-test 2**40": (["--n-test", str(2 ** 40)], [f"--n-test {2 ** 40}", "GiB in memory"]),
     "--n-train 2**40": (["--n-train", str(2 ** 40)], [f"--n-train {2 ** 40}", "GiB in memory"]),
     "--iters 2**70": (["--methods", "compennet", "--iters", str(2 ** 70)], ["option iters", "at most 1000000"]),

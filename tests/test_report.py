@@ -276,6 +276,9 @@ def test_report_self_contained(study):
 def test_report_errors(tmp_path, capsys):
     assert main(["report", str(tmp_path / "missing")]) == 2
     assert "folder not found" in capsys.readouterr().err
+    (tmp_path / "a.csv").write_text("point\n")
+    assert main(["report", str(tmp_path / "a.csv")]) == 2
+    assert "a.csv: a file, not a study or bench folder" in capsys.readouterr().err
     folder = make_study(tmp_path / "s") if (tmp_path / "s").mkdir() is None else None
     text = (folder / "results.csv").read_text().replace(",ok,", ",fine,", 1)
     (folder / "results.csv").write_text(text)

@@ -466,6 +466,19 @@ def test_a_training_value_given_as_an_axis_and_again_is_refused(tmp_path, axis, 
         load_study(path)
 
 
+def test_an_option_no_method_takes_is_named_where_it_was_given(tmp_path):
+    """--iters on a study of TPS alone names the flag; [options] iters left without the network by
+    --methods names the file's key and the flag that chose the methods."""
+    path = _study_file(tmp_path, "")
+    with pytest.raises(ProcamError, match=re.escape("--iters 5: not an option of any method of the study "
+                                                    "(tps, as --methods gives them)")):
+        expand(with_overrides(load_study(path), iters=5, methods=("tps",)))
+    path.write_text(path.read_text() + "[options]\niters = 5\n")
+    with pytest.raises(ProcamError, match=re.escape("options.iters: not an option of any method of the "
+                                                    "study (tps, as --methods gives them)")):
+        expand(with_overrides(load_study(path), methods=("tps",)))
+
+
 def test_a_study_whose_frames_cannot_be_held_names_its_file_and_writes_nothing(tmp_path, capsys):
     path = _study_file(tmp_path, "n_test = 1000000000")
     assert main(["study", str(path), "--out", str(tmp_path / "out")]) == 2

@@ -378,6 +378,8 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
         else:
             changes["options"] = {**study.options, key: value}
     if size is not None:
+        if min(size) < 8:  # as the study file's size
+            raise ProcamError(f"--size {'x'.join(map(str, size))}: expected sides of at least 8 pixels")
         changes["size"] = tuple(size)
     if n_test is not None:
         changes["n_test"] = n_test
@@ -487,8 +489,11 @@ def expand(study: Study) -> Plan:
                           "CompenNet takes and every method's data loader requires")
     used = set(COMMON).union(*(get_method(m).options.names() for m in study.methods))
     if unknown := sorted(set(study.options) - used):
-        raise ProcamError(f"{study.path}: options.{unknown[0]}: not an option of any method of the study "
-                          f"({', '.join(study.methods)})")
+        key = unknown[0]
+        given = (f"--{key} {study.overrides[key]}" if key in study.overrides  # the command line's
+                 else f"options.{key}")
+        raise ProcamError(f"{study.path}: {given}: not an option of any method of the study "
+                          f"({', '.join(study.methods)}{', as --methods gives them' if 'methods' in study.overrides else ''})")
     for axis in study.axes:
         if not axis.on_setup and axis.key not in used:
             raise ProcamError(f"{study.path}: axis {axis.key!r}: not an option of any method of the "

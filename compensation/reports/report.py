@@ -129,7 +129,8 @@ def load_folder(folder: Path) -> tuple[dict, list[dict]]:
     """
     folder = Path(folder)
     if not folder.is_dir():
-        raise ProcamError(f"{folder}: folder not found")
+        raise ProcamError(f"{folder}: " + ("a file, not a study or bench folder" if folder.exists()
+                                           else "folder not found"))
     if (folder / "study.json").is_file():
         study = read_study(folder)
         listed = {a["key"]: a["values"] for a in study["axes"]}
