@@ -25,8 +25,9 @@ A study file (TOML; the shipped ones are ``scenes/studies/*.toml``)::
     iters = 500                     #   (not seed, n_train, n_test: the study's own keys)
 
     [[axis]]                        # one or two
-    key = "projector.aperture"      # a setup key "section.key", or a training option
-    values = [0.0, 0.01, 0.02]
+    key = "projector.aperture"      # a setup key "section.key", or a training option, given by the
+                                    #   axis alone (not also in [setup], [options] or n_train)
+    values = [0.0, 0.01, 0.02]      # distinct to 6 significant digits, as results.csv writes them
     label = "projector aperture"    # optional, default: the key
     unit = "m"                      # optional
 
