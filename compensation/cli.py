@@ -13,7 +13,8 @@ from sim.setup import load_setups, select_setups
 
 
 MIN_SIDE = 4
-"""Fewest canonical pixels along a side that ``render``, ``bench`` and ``study`` take."""
+"""Fewest canonical pixels along a side that ``render`` and ``bench`` take (a study takes 8, its
+file's least, and says so)."""
 
 
 def _side(text: str) -> int:

@@ -334,6 +334,8 @@ STUDY_TRIES = {
     "--seeds 10**9": (["--seeds", str(10 ** 9)], ["--seeds 1000000000", "at most 10000"]),
     "--size 100000": (["--size", "100000"], ["--size", "100000", "<= 4096"]),
     "--size 4": (["--size", "4"], ["--size 4x4: expected sides of at least 8 pixels"]),
+    "--out-of-reach for no target": (["--target-policy", "none", "--out-of-reach", "0.1"],
+                                     ["--out-of-reach 0.1: the target policy 'none'"]),
     "--n-test 2**40": (["--n-test", str(2 ** 40)], [f"--n-test {2 ** 40}", "GiB in memory"]),
     "--n-train 2**40": (["--n-train", str(2 ** 40)], [f"--n-train {2 ** 40}", "GiB in memory"]),
     "--iters 2**70": (["--methods", "compennet", "--iters", str(2 ** 70)], ["option iters", "at most 1000000"]),
@@ -469,6 +471,21 @@ BENCH_DAMAGES = {
 }
 """Damaged records of a bench folder written before results.csv: bench.json, per_setup.csv and
 failures.json, and what the refusal names."""
+
+
+def test_a_bench_whose_table_1_runs_all_failed_is_reported(tmp_path):
+    """per_setup.csv holds the runs that finished; a bench whose every Table 1 run failed has its
+    header only, and its failures in failures.json: a folder procam wrote, not a damaged one."""
+    from compensation.reports.report import load_folder
+
+    folder = tmp_path / "bench"
+    folder.mkdir()
+    (folder / "bench.json").write_text("{}")
+    (folder / "per_setup.csv").write_text(GOOD_PER_SETUP.splitlines()[0] + "\n")
+    (folder / "failures.json").write_text(json.dumps({"failures": [
+        {"table": "1", "setup": "synth", "method": "tps", "n_train": 8, "error": "no light"}]}))
+    _, rows = load_folder(folder)
+    assert [(r["method"], r["status"], r["error"]) for r in rows] == [("tps", "failed", "no light")]
 
 
 @pytest.mark.parametrize("case", BENCH_DAMAGES)

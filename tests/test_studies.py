@@ -335,6 +335,9 @@ def test_render_seeds_shift_the_seed_each_point_sets(tmp_path):
                                      + "\n[setup]\nrender = { seed = 10 }\n")
     plan = expand(load_study(tmp_path / "s.toml"))
     assert sorted({s.render.seed for s in plan.setups.values()}) == [10, 12]
+    (tmp_path / "s.toml").write_text(axis + '[[axis]]\nkey = "render.seed"\nvalues = [1, 3]\n')
+    with pytest.raises(ProcamError, match=re.escape("1 + seed 2 and 3 + seed 0 are one render seed")):
+        expand(load_study(tmp_path / "s.toml"))
 
 
 @pytest.mark.slow
@@ -464,6 +467,15 @@ def test_a_training_value_given_as_an_axis_and_again_is_refused(tmp_path, axis, 
                     f'{top}\n[[axis]]\nkey = "{axis}"\nvalues = [8, 16]\n{tail}\n')
     with pytest.raises(ProcamError, match=re.escape(f"twice.toml: {where}: also given by the axis on {axis}")):
         load_study(path)
+
+
+def test_whole_numbers_are_told_apart_in_full(tmp_path):
+    """results.csv writes whole numbers in full (only decimals to 6 digits): two 8-digit seeds are
+    two points."""
+    path = tmp_path / "seeds.toml"
+    path.write_text(f'base = "{ROOT / "scenes" / "default.toml"}"\nmethods = ["tps"]\n'
+                    '[[axis]]\nkey = "render.seed"\nvalues = [20240101, 20240102]\n')
+    assert len(expand(load_study(path)).setups) == 2
 
 
 def test_an_option_no_method_takes_is_named_where_it_was_given(tmp_path):

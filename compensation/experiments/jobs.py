@@ -497,6 +497,47 @@ def _cell(value) -> str:
     return str(value)
 
 
+def cell_identity(value) -> str:
+    """What an axis value is once :func:`_cell` has written it to ``results.csv``: two values of one
+    identity are one cell. Whole numbers in full, decimals to the cell's 6 significant digits
+    (0 and -0 one), the entries of a list in full (its cell is JSON), anything else as text; the
+    cell's own text has the identity of the value it was written from.
+
+    >>> cell_identity(1) == cell_identity(1.0), cell_identity(True) == cell_identity(1)
+    (True, False)
+    >>> cell_identity(0.1234567) == cell_identity("0.123457"), cell_identity(-0.0) == cell_identity("0")
+    (True, True)
+    >>> cell_identity(20240101) == cell_identity("20240102"), cell_identity(20240101.0) == cell_identity(20240102.0)
+    (False, True)
+    >>> cell_identity([0.1, 1]) == cell_identity("[0.1, 1.0]"), cell_identity("RGGB")
+    (True, 'RGGB')
+    """
+    if isinstance(value, str):
+        text = value.strip()
+        for parse in (int, float, json.loads):
+            try:
+                parsed = parse(text)
+            except ValueError:
+                continue
+            if isinstance(parsed, (int, float, list)):
+                return cell_identity(parsed)
+        return text
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_number_identity(v, rounded=False) for v in value) + "]"
+    return _number_identity(value, rounded=True)
+
+
+def _number_identity(value, rounded: bool) -> str:
+    """A number's part of :func:`cell_identity` (rounded to 6 significant digits, or in full);
+    anything else as text."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return str(value)
+    if isinstance(value, float):
+        value = (float(f"{value:.6g}") if rounded else value) + 0.0
+        return repr(int(value)) if value.is_integer() and abs(value) < 2 ** 53 else repr(value)
+    return repr(value)
+
+
 def per_image_rows(rows: Sequence[dict], keys: Sequence[str]) -> list[dict]:
     """One row per run and test image: the run's ``keys`` cells, ``image`` (1-based) and its
     :data:`PER_IMAGE_SCORES` (None where not kept), from each row's ``per_image``

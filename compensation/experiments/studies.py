@@ -27,7 +27,7 @@ A study file (TOML; the shipped ones are ``scenes/studies/*.toml``)::
     [[axis]]                        # one or two
     key = "projector.aperture"      # a setup key "section.key", or a training option, given by the
                                     #   axis alone (not also in [setup], [options] or n_train)
-    values = [0.0, 0.01, 0.02]      # distinct to 6 significant digits, as results.csv writes them
+    values = [0.0, 0.01, 0.02]      # distinct as results.csv writes them (decimals: 6 significant digits)
     label = "projector aperture"    # optional, default: the key
     unit = "m"                      # optional
 
@@ -63,7 +63,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 from compensation.experiments.executors import LocalExecutor
-from compensation.experiments.jobs import check_study_folder, write_results, write_study_record
+from compensation.experiments.jobs import cell_identity, check_study_folder, write_results, write_study_record
 from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name, slug
 from compensation.experiments.targets import DEFAULT_OUT_OF_REACH, TargetPolicy
 from compensation.methods import applicable, check_runnable, get_method, make_config, option_owners
@@ -175,22 +175,6 @@ def _size(path: Path, value) -> tuple[int, int]:
     return tuple(value)
 
 
-def _distinct(value) -> str:
-    """What makes two axis values the same point: numbers by value as ``results.csv`` writes them
-    (6 significant digits; 0 and -0 are one), anything else as written.
-
-    >>> _distinct(1) == _distinct(1.0), _distinct(True) == _distinct(1), _distinct([1, 2]) == _distinct([1.0, 2])
-    (True, False, True)
-    >>> _distinct(0.1234567) == _distinct(0.1234568), _distinct(-0.0) == _distinct(0)
-    (True, True)
-    """
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_distinct(v) for v in value) + "]"
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return repr(float(f"{float(value):.6g}") + 0.0)
-    return repr(value)
-
-
 def _axis(path: Path, i: int, table) -> Axis:
     where = f"axis[{i}]"
     if not isinstance(table, dict):
@@ -203,7 +187,7 @@ def _axis(path: Path, i: int, table) -> Axis:
     if not isinstance(values, list) or not values:
         raise _error(path, f"{where}.values", values, "expected a non-empty list")
     broadcast = key in _triple_keys()  # a number there is the triple of it: 0.1 is [0.1, 0.1, 0.1]
-    if len({_distinct([v] * 3 if broadcast and isinstance(v, (int, float)) else v)
+    if len({cell_identity([v] * 3 if broadcast and isinstance(v, (int, float)) else v)
             for v in values}) < len(values):
         raise _error(path, f"{where}.values", values, "expected distinct values (1 and 1.0 are one, "
                      "and so are values equal to 6 significant digits, as results.csv writes them)")
@@ -359,7 +343,8 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
     Raises
     ------
     ProcamError
-        If a method is unknown, a value is not positive, or ``seeds`` is above :data:`MAX_RUNS`.
+        If a method is unknown, a value is not positive, a side of ``size`` is below 8 pixels (as
+        the study file's), or ``seeds`` is above :data:`MAX_RUNS`.
     """
     given = {"size": size, "n_train": n_train, "n_test": n_test, "iters": iters, "seeds": seeds,
              "methods": methods, "only": only, "target_policy": target_policy, "out_of_reach": out_of_reach,
@@ -398,6 +383,9 @@ def with_overrides(study: Study, size: tuple[int, int] | None = None, n_train: t
         changes["closed_loop"] = closed_loop
     if raw is not None:
         changes["raw"] = raw
+    if out_of_reach is not None and (target_policy or study.target.name) == "none":
+        raise ProcamError(f"--out-of-reach {out_of_reach}: the target policy 'none' (the study's or "
+                          "--target-policy) maps no target and leaves no share out of reach")
     if target_policy is not None or out_of_reach is not None:
         changes["target"] = TargetPolicy(target_policy or study.target.name,
                                          study.target.out_of_reach if out_of_reach is None else out_of_reach)
@@ -473,7 +461,8 @@ def expand(study: Study) -> Plan:
         an invalid setup (named with the study file, the point and its values), two points give
         one setup name, the size is not divisible by 4, an option is not taken by any of the
         study's methods, a training value is invalid or cannot run here
-        (:func:`~compensation.methods.check_runnable`), or an item of ``only`` selects nothing.
+        (:func:`~compensation.methods.check_runnable`), an item of ``only`` selects nothing, or
+        ``render_seeds`` shifts two values of an axis on ``render.seed`` onto one seed.
     """
     try:
         bases = load_setups(base_path(study))
@@ -488,6 +477,15 @@ def expand(study: Study) -> Plan:
         raise ProcamError(f"{study.path}: size {study.size[0]}x{study.size[1]} (W x H, the study's "
                           f"or --size): expected sides divisible by {SIZE_MULTIPLE}, the sizes "
                           "CompenNet takes and every method's data loader requires")
+    if study.render_seeds:  # each seed its own dataset: no two points may share a shifted seed
+        for axis in (a for a in study.axes if a.key == "render.seed"):
+            shifted: dict = {}
+            for value, seed in itertools.product(axis.values, study.seeds):
+                if isinstance(value, int) and shifted.setdefault(value + seed, (value, seed)) != (value, seed):
+                    first = shifted[value + seed]
+                    raise ProcamError(f"{study.path}: render_seeds with the axis on render.seed: "
+                                      f"{first[0]} + seed {first[1]} and {value} + seed {seed} are one "
+                                      "render seed; give values further apart than the seeds")
     used = set(COMMON).union(*(get_method(m).options.names() for m in study.methods))
     if unknown := sorted(set(study.options) - used):
         key = unknown[0]

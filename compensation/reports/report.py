@@ -57,10 +57,7 @@ def _bench_rows(folder: Path) -> tuple[dict, list[dict]]:
     the uncompensated closed loop, the oracle and the optimum from ``bench.json``."""
     bench = read_json(folder / "bench.json", "bench record")
     table = list(csv.DictReader(io.StringIO(table_text(folder / "per_setup.csv", "bench table"))))
-    if not any(r.get("table") == "1" for r in table):
-        raise ProcamError(f"{folder / 'per_setup.csv'}: holds no row of Table 1 (a bench writes one per "
-                          "setup and method)")
-    if missing := [c for c in ("table", "setup", "method", "n_train") if c not in table[0]]:
+    if table and (missing := [c for c in ("table", "setup", "method", "n_train") if c not in table[0]]):
         raise ProcamError(f"{folder / 'per_setup.csv'}: missing column(s) {', '.join(missing)}")
     seen: dict[tuple, int] = {}
     for line, r in enumerate(table, start=2):
@@ -70,10 +67,14 @@ def _bench_rows(folder: Path) -> tuple[dict, list[dict]]:
                               f"{r['setup']}, method {r['method']}, n_train {r['n_train']} is given twice "
                               f"(first on line {seen[run]})")
     try:
-        return _bench_record(folder, bench, table)
+        study, rows = _bench_record(folder, bench, table)
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise ProcamError(f"{folder}: bench.json, per_setup.csv or failures.json is not as procam writes "
                           f"it ({type(exc).__name__}: {exc})") from None
+    if not rows:
+        raise ProcamError(f"{folder / 'per_setup.csv'}: holds no run of Table 1 (nor does failures.json): "
+                          "nothing to report")
+    return study, rows
 
 
 def _bench_record(folder: Path, bench: dict, table: list[dict]) -> tuple[dict, list[dict]]:

@@ -20,12 +20,12 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
+from compensation.experiments.jobs import cell_identity
 from compensation.experiments.targets import TargetPolicy
 from sim.errors import ProcamError
 from sim.io import atomic_write, read_json
@@ -186,7 +186,8 @@ def read_results(path: Path, axes: list[str], listed: dict[str, list] | None = N
         column or axis column is absent, or a row has more or fewer cells than the header, or a cell of
         ``point``, ``n_train``, ``seed`` is not an integer, of a score not a number or of an axis
         empty or not finite (or not one of ``listed``), or a ``status`` is unknown, or a run
-        (:data:`RUN_COLUMNS`) is given twice, or an ``ok`` run lacks a finite PSNR, SSIM or ΔE, or
+        (:data:`RUN_COLUMNS`) is given twice, or an ``ok`` run has an infinite score of its own or no
+        PSNR (surrogate or closed loop), or
         one point has two sets of axis values or two points one; the message names the file, the
         row and the column.
     """
@@ -237,29 +238,19 @@ def read_results(path: Path, axes: list[str], listed: dict[str, list] | None = N
 
 
 def _missing_scores(row: dict) -> str:
-    """The score column that makes an ``ok`` row's scores incomplete: one that is infinite, or the
-    PSNR where neither the surrogate nor the closed loop has one; empty where none.
+    """The score column that makes an ``ok`` row's scores incomplete: one of the run's own that is
+    infinite (a run with one is ``nan``; a baseline's, such as ``unc_psnr``, may be), or the PSNR
+    where neither the surrogate nor the closed loop has one; empty where none.
 
     >>> _missing_scores({"psnr": float("nan"), "cl_psnr": 20.0}), _missing_scores({"psnr": float("inf")})
     ('', 'psnr')
+    >>> _missing_scores({"psnr": 20.0, "unc_psnr": float("inf")})
+    ''
     """
-    if inf := [k for k in SCORES if isinstance(row.get(k), float) and math.isinf(row[k])]:
+    own = (*METRICS, *(f"cl_{m}" for m in METRICS))
+    if inf := [k for k in own if isinstance(row.get(k), float) and math.isinf(row[k])]:
         return inf[0]
     return "" if any(is_finite(row.get(k)) for k in ("psnr", "cl_psnr")) else "psnr"
-
-
-def _same(value) -> str:
-    """An axis value as ``study.json`` and ``results.csv`` both name it: a number to the 6
-    significant digits the CSV keeps, a list as its JSON text, anything else as text.
-
-    >>> _same(0.1234567) == _same("0.123457"), _same(-0.0) == _same(0), _same([0.1, 1]) == _same("[0.1, 1]")
-    (True, True, True)
-    """
-    if isinstance(value, str):
-        value = _number(value)
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return repr(float(f"{float(value):.6g}") + 0.0)
-    return json.dumps(value) if isinstance(value, (list, tuple)) else str(value)
 
 
 def _check_point(path: Path, line: int, row: dict, axes: list[str], listed: dict[str, list],
@@ -268,10 +259,10 @@ def _check_point(path: Path, line: int, row: dict, axes: list[str], listed: dict
     point, one set of values (``points``: what each point and each set of values was first
     given as, updated)."""
     for key in axes:
-        if key in listed and _same(row[key]) not in {_same(v) for v in listed[key]}:
+        if key in listed and cell_identity(row[key]) not in {cell_identity(v) for v in listed[key]}:
             raise ProcamError(f"{path}, line {line}: column {key}: {row[key]!r} is not one of the "
                               f"study's values ({', '.join(map(str, listed[key]))}; study.json)")
-    values = tuple(_same(row[key]) for key in axes)
+    values = tuple(cell_identity(row[key]) for key in axes)
     shown = f"point {row['point']} ({', '.join(f'{k} = {row[k]}' for k in axes) or 'no axis'})"
     if points.setdefault(("point", row["point"]), (values, line))[0] != values:
         raise ProcamError(f"{path}, line {line}: {shown}: line {points[('point', row['point'])][1]} "
