@@ -485,6 +485,8 @@ def test_load_setups_takes_a_setup_file_a_suite_file_or_a_shipped_name(tmp_path)
     (tmp_path / "broken.toml").write_text("name = \n")
     with pytest.raises(SetupError, match="broken.toml: not valid TOML"):
         load_setups(str(tmp_path / "broken.toml"))
+    (tmp_path / "bom.toml").write_bytes(b"\xef\xbb\xbf" + one.read_bytes())  # as some editors save
+    assert load_setups(str(tmp_path / "bom.toml"))[0].camera.fov == 38.0
 
 
 def test_a_suite_says_which_test_frames_its_datasets_take(tmp_path):

@@ -469,6 +469,12 @@ def test_a_training_value_given_as_an_axis_and_again_is_refused(tmp_path, axis, 
         load_study(path)
 
 
+def test_a_study_file_saved_with_a_byte_order_mark_loads(tmp_path):
+    path = _study_file(tmp_path, "")
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    assert load_study(path).axes[0].key == "ambient.radiance"
+
+
 def test_whole_numbers_are_told_apart_in_full(tmp_path):
     """results.csv writes whole numbers in full (only decimals to 6 digits): two 8-digit seeds are
     two points."""

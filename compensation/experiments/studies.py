@@ -77,6 +77,7 @@ from sim.options import repeated
 from sim.seeds import SEED_MAX
 from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
 from sim.setup.schema import SECTIONS
+from sim.setup.toml import read_toml
 
 STUDY_KEYS = ("name", "question", "base", "methods", "seeds", "n_train", "n_test", "size", "profile",
               "render_seeds", "only", "target_policy", "out_of_reach", "closed_loop", "raw", "setup",
@@ -223,13 +224,7 @@ def load_study(path: Path | str, profile: str | None = None) -> Study:
         ``--profile``).
     """
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except OSError as exc:
-        raise ProcamError(f"{path}: cannot read the study file ({exc.strerror or exc})") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ProcamError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path, "the study file")
     if unknown := sorted(set(data) - set(STUDY_KEYS)):
         raise ProcamError(f"{path}: {unknown[0]}: unknown key; valid keys of a study: {', '.join(STUDY_KEYS)}")
     for key in ("base", "methods", "axis"):

@@ -18,8 +18,9 @@ from sim.setup.validation import parse_setup
 _HEADER = "# procam setup, fully resolved (metres, degrees, linear RGB)\n"
 
 
-def read_toml(path: Path | str) -> dict:
-    """The mapping of a TOML file.
+def read_toml(path: Path | str, what: str = "setup file") -> dict:
+    """The mapping of a TOML file (``what`` it is, for messages). A UTF-8 byte-order mark, which
+    some editors write and TOML does not allow, is skipped.
 
     Raises
     ------
@@ -28,9 +29,9 @@ def read_toml(path: Path | str) -> dict:
     """
     try:
         with open(path, "rb") as f:
-            return tomllib.load(f)
+            return tomllib.loads(f.read().decode("utf-8-sig"))
     except OSError as exc:
-        raise SetupError(f"{path}: cannot read setup file ({exc.strerror or exc})") from None
+        raise SetupError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:  # TOML is UTF-8
         raise SetupError(f"{path}: not valid TOML ({exc})") from None
 
