@@ -152,9 +152,27 @@ def test_target_policy_key_and_override(tmp_path):
 
 def test_training_axis_shares_runs_of_methods_without_the_option():
     plan = expand(load_study(ROOT / "scenes" / "studies" / "iterations.toml"))
-    tps = {r.run for r in plan.runs if r.method == "tps"}
-    assert tps == {f"runs/default/tps-n125-seed{s}" for s in (0, 1, 2)}  # one fit for all 6 points
+    tps = [r for r in plan.runs if r.method == "tps"]
+    assert {r.run for r in tps} == {"runs/default/tps-n125-seed0"}  # one fit for 6 points, 3 seeds
+    assert sorted({r.seed for r in tps}) == [0, 1, 2] and len(tps) == 6 * 3  # a row per point, seed
     assert "runs/default/compennet-n125-seed1-iters250" in {r.run for r in plan.runs}
+
+
+def test_plain_colour_and_unseeded_fits_are_made_once():
+    """TPS and Nayar fit the 125 plain colours, without a seed: one run each for the train-size
+    study's 7 sizes and 3 seeds (loading the fewest pairs); the networks one per size and seed."""
+    plan = expand(load_study(ROOT / "scenes" / "studies" / "train-size.toml"))
+    for method in ("tps", "nayar"):
+        runs = [r for r in plan.runs if r.method == method]
+        assert {r.run for r in runs} == {f"runs/default/{method}-n125-seed0"} and len(runs) == 7 * 3
+        assert {(r.cfg.n_train, r.cfg.seed) for r in runs} == {(8, 0)}
+        assert sorted({r.n_train for r in runs}) == [8, 16, 32, 64, 125, 250, 500]
+    assert len({r.run for r in plan.runs if r.method == "compennet"}) == 7 * 3
+    plan = expand(with_overrides(load_study(ROOT / "scenes" / "studies" / "train-size.toml"),
+                                 methods=("tps-textured", "compennet"), n_train=(8, 600)))
+    textured = {(r.n_train, r.seed): r.run for r in plan.runs if r.method == "tps-textured"}
+    assert textured[(8, 1)] == textured[(8, 2)] == "runs/default/tps-textured-n8-seed0"  # all pairs
+    assert textured[(600, 1)] == "runs/default/tps-textured-n600-seed1"  # a seeded subset of 500
 
 
 @pytest.mark.parametrize("axis, message", [
@@ -227,7 +245,7 @@ def test_study_folder(tiny):
         assert float(r["cl_psnr_reachable"]) > float(r["cl_unc_psnr_reachable"]) + REACHABLE_MARGIN_DB, r
         assert 0 < float(r["cl_ssim"]) <= 1 and float(r["cl_deltae"]) > 0
         run = out / r["run"]
-        assert r["run"] == f"runs/{r['setup']}/{r['method']}-n8-seed0"
+        assert r["run"] == f"runs/{r['setup']}/{r['method']}-n125-seed0"  # the plain colours
         metrics = json.loads((run / "metrics.json").read_text())
         assert float(r["cl_psnr"]) == pytest.approx(metrics["closed_loop"]["psnr"], rel=1e-5)
         captures = sorted(p.name for p in (run / "closed_loop").iterdir())
@@ -271,7 +289,7 @@ def test_resume_fits_nothing_and_a_failure_is_a_row(tiny, monkeypatch, capsys):
         raise RuntimeError("simulated crash")
 
     monkeypatch.setattr(METHODS["nayar"], "fit", broken)
-    failing = next(p.parent for p in stamps if p.parent.name == "nayar-n8-seed0"
+    failing = next(p.parent for p in stamps if p.parent.name == "nayar-n125-seed0"
                    and p.parent.parent.name.endswith("0p1"))
     shutil.rmtree(failing)
     assert main(args) == 0
@@ -282,7 +300,7 @@ def test_resume_fits_nothing_and_a_failure_is_a_row(tiny, monkeypatch, capsys):
     failed = rows[-1]
     assert "RuntimeError: simulated crash" in failed["error"] and failed["psnr"] == ""
     assert failed["unc_psnr"] and failed["oracle_psnr"]  # the setup's baselines are still there
-    assert failed["run"] == f"runs/{failing.parent.name}/nayar-n8-seed0"
+    assert failed["run"] == f"runs/{failing.parent.name}/nayar-n125-seed0"
 
 
 def test_run_status(tmp_path):
@@ -318,7 +336,8 @@ def test_render_seeds_give_each_seed_its_dataset(tmp_path):
     plan = expand(load_study(tmp_path / "s.toml"))
     assert {name: s.render.seed for name, s in plan.setups.items()} == {
         f"base__ambient-radiance-{v}__seed{k}": 5 + k for v in ("0p02", "0p1") for k in (0, 2)}
-    assert all(r.setup.endswith(f"__seed{r.seed}") and r.cfg.seed == r.seed for r in plan.runs)
+    assert all(r.setup.endswith(f"__seed{r.seed}") for r in plan.runs)
+    assert {r.cfg.seed for r in plan.runs} == {0}  # TPS and Nayar take no seed: their datasets differ
     assert len(plan.runs) == 2 * 2 * 2  # points x methods x seeds
 
 

@@ -37,11 +37,13 @@ it like a setup file (errors name the study file and the point); a number given 
 holds an RGB triple (``ambient.radiance``, ``surface.tint``, ``camera.white_balance``) applies to
 all three channels. An axis on a training option (``n_train``, or a method option such as
 ``iters``) changes the runs only; a method that does not take the option is fitted once for all
-its values. Two axes make the grid of their values (the *points*, numbered from 0).
+its values, and a method fitted on the 125 plain colours (TPS, Nayar) once for every number of
+training pairs. Two axes make the grid of their values (the *points*, numbered from 0).
 
 The seed of a row is the training seed (:attr:`~compensation.training.config.TrainConfig.seed`:
 initialisation, batch order, sampling); every seed shares one rendered dataset per point, so the
-spread over seeds is the methods' own. With ``render_seeds = true`` the seed also shifts
+spread over seeds is the methods' own; a fit that takes no seed (TPS, Nayar) is made once, its
+rows repeated per seed. With ``render_seeds = true`` the seed also shifts
 ``render.seed`` (the Mitsuba sampler and the camera noise: the point's render seed, from the base,
 ``[setup]`` or an axis, + seed) and each seed gets
 its own dataset, so the spread includes the capture noise.
@@ -72,6 +74,7 @@ from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
 from sim.descriptors import DESCRIPTORS
 from sim.errors import DatasetError, ProcamError
+from sim.layout import N_PLAIN
 from sim.light import AXIS_SHARES, SHARE_NAMES
 from sim.options import repeated
 from sim.seeds import SEED_MAX
@@ -498,6 +501,7 @@ def expand(study: Study) -> Plan:
     setups: dict[str, Setup] = {}
     origin: dict[str, tuple] = {}
     runs = []
+    fewest = min(next(a for a in study.axes if a.key == "n_train").values if train_axis else study.n_train)
     for point in points:
         for base in bases:
             for seed in study.seeds:
@@ -512,12 +516,7 @@ def expand(study: Study) -> Plan:
                 sizes = (_of(study, point, False)["n_train"],) if train_axis else study.n_train
                 for method in study.methods:
                     for n in sizes:
-                        # a method that does not take a training axis is fitted once for all its values
-                        varied = {k: v for k, v in applicable(method, _of(study, point, False)).items()
-                                  if k != "n_train"}
-                        runs.append(Run(point, setup.name, method, n, seed,
-                                        _train_config(study, method, n, seed, point),
-                                        f"runs/{setup.name}/{run_name(method, n, seed, varied)}"))
+                        runs.append(_run(study, point, setup.name, method, n, seed, fewest))
     unmatched = [item for item in study.only if item not in {str(p.index) for p in points}
                  and not any(fnmatch.fnmatchcase(name, item) for name in origin)]
     if unmatched:
@@ -525,6 +524,23 @@ def expand(study: Study) -> Plan:
         raise ProcamError(f"{study.path}: {given}: matches no point number or setup (points "
                           f"0-{len(points) - 1}; setups e.g. {next(iter(origin))})")
     return Plan(points, setups, tuple(runs))
+
+
+def _run(study: Study, point: Point, setup: str, method: str, n_train: int, seed: int, fewest: int) -> Run:
+    """The row of ``method`` with ``n_train`` pairs and ``seed`` at ``point``, and the run that
+    gives it. Rows that differ in nothing the fit depends on share one run, fitted once: a method
+    that does not take a training axis, for all its values; a method on the plain colours
+    (:attr:`~compensation.methods.base.Method.plain_colours`), for every number of training pairs
+    (its run loads the study's ``fewest`` and is named for the 125 it fits); an unseeded fit
+    (:meth:`~compensation.methods.base.Method.seeded`), for every seed (the study's first)."""
+    cls = get_method(method)
+    fit_n = fewest if cls.plain_colours else n_train
+    cfg = _train_config(study, method, fit_n, seed, point)
+    if not cls.seeded(cfg):
+        cfg = replace(cfg, seed=study.seeds[0])
+    varied = {k: v for k, v in applicable(method, _of(study, point, False)).items() if k != "n_train"}
+    name = run_name(method, N_PLAIN if cls.plain_colours else n_train, cfg.seed, varied)
+    return Run(point, setup, method, n_train, seed, cfg, f"runs/{setup}/{name}")
 
 
 def _first_setup(plan: Plan, axis: Axis, value) -> str | None:

@@ -233,6 +233,13 @@ class Method(abc.ABC):
     (TPS, Nayar); its official tag then names 125."""
 
     @classmethod
+    def seeded(cls, cfg: TrainConfig) -> bool:
+        """Whether the fit with ``cfg`` depends on ``cfg.seed`` (initialisation, batch order or a
+        random subset of the pairs); a fit that does not gives the same result for every seed, and
+        a study fits it once. True by default."""
+        return True
+
+    @classmethod
     def check_image_size(cls, options: Options, width: int, height: int) -> None:
         """Raise :class:`ProcamError` unless the method, with ``options``, takes ``width`` ×
         ``height`` images (pixels); every size by default."""

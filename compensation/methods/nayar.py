@@ -226,6 +226,11 @@ class NayarMethod(Method):
     name = "nayar"
     official_name = "Nayar"
     options = NoOptions
+
+    @classmethod
+    def seeded(cls, cfg: TrainConfig) -> bool:
+        """A least-squares fit on the plain colours: no seed."""
+        return False
     state_file = STATE_FILE
     plain_colours = True
 

@@ -398,6 +398,11 @@ class TPSMethod(Method):
     state_file = STATE_FILE
     plain_colours = True
 
+    @classmethod
+    def seeded(cls, cfg: TrainConfig) -> bool:
+        """Every pixel's spline through the 125 plain colours, solved exactly: no seed."""
+        return False
+
     def __init__(self, device: str = "auto"):
         self.device = resolve_device(device)
         self.smoothing: float | None = None
@@ -516,6 +521,11 @@ class TPSTexturedMethod(TPSMethod):
     official_name = "TPS_textured"
     options = TPSTexturedOptions
     plain_colours = False
+
+    @classmethod
+    def seeded(cls, cfg: TrainConfig) -> bool:
+        """The seed picks the subset of the pairs only where there are more than ``max_samples``."""
+        return cfg.n_train > cfg.options.max_samples
 
     def training_pairs(self, data: SetupData, cfg: TrainConfig) -> PairSet:
         """All training pairs, or a seeded random subset of ``max_samples`` of them (sorted)."""
