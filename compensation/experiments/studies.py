@@ -194,7 +194,7 @@ def _axis(path: Path, i: int, table) -> Axis:
     if len({cell_identity([v] * 3 if broadcast and isinstance(v, (int, float)) else v)
             for v in values}) < len(values):
         raise _error(path, f"{where}.values", values, "expected distinct values (1 and 1.0 are one, "
-                     "and so are values equal to 6 significant digits, as results.csv writes them)")
+                     "and so are decimals equal to 6 significant digits, as results.csv writes them)")
     if "." in key:
         section = key.split(".", 1)[0]
         if section not in SECTIONS:

@@ -226,13 +226,13 @@ class NayarMethod(Method):
     name = "nayar"
     official_name = "Nayar"
     options = NoOptions
+    state_file = STATE_FILE
+    plain_colours = True
 
     @classmethod
     def seeded(cls, cfg: TrainConfig) -> bool:
         """A least-squares fit on the plain colours: no seed."""
         return False
-    state_file = STATE_FILE
-    plain_colours = True
 
     def __init__(self, device: str = "auto"):
         self.device = resolve_device(device)

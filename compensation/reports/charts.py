@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from compensation.experiments.jobs import cell_identity
 from compensation.reports.summary import (BREAK_GAIN_DB, CONFIDENCE, is_finite, order_key, closed_loop_gain,
                                           n_train_follows)
 from sim.io import atomic_write
@@ -357,21 +358,15 @@ def tick_labels(axis: dict, pos: dict) -> list[str]:
     >>> tick_labels(axis, {"[0.1, 0.1, 0.1]": 0})
     ['[0.1, 0.1, 0.1]\n4.2']
     """
-    physical = {_tick_key(v): p for v, p in zip(axis.get("values", []),
+    physical = {cell_identity(v): p for v, p in zip(axis.get("values", []),
                                                  (axis.get("physical") or {}).get("values", []))}
     labels = []
     for value in sorted(pos, key=pos.get):
         text = f"{value:g}" if isinstance(value, (int, float)) else str(value)
-        if physical.get(_tick_key(value)) is not None:
-            text += f"\n{physical[_tick_key(value)]:.3g}"
+        if physical.get(cell_identity(value)) is not None:
+            text += f"\n{physical[cell_identity(value)]:.3g}"
         labels.append(text)
     return labels
-
-
-def _tick_key(value) -> float | str:
-    """An axis value as the same key whether read from ``study.json`` (numbers, lists) or from a
-    CSV cell (numbers, the JSON text of a list)."""
-    return float(value) if is_finite(value) else str(value)
 
 
 def _format_x(ax, pos: dict, numeric: bool, log_x: bool, xlabel: str, axis: dict) -> None:
