@@ -22,6 +22,9 @@ Steps (each adds to the one above):
 
 With ``--nchw-ab``, procam's step (``retained heap``) with the NCHW weight gradients forced on and
 off, taking turns, per size: the A/B behind :data:`~compensation.training.conv_grad.NCHW_WEIGHT_GRADIENT_CPUS`.
+With ``--amp-ab``, procam's step in float32 against the same step with its forward pass under
+bf16 autocast (``procam train --amp``), taking turns, per size, and the loss of each after the same
+steps from the same start.
 
 Then, with ``--data``, the `quick` profile's training time and test PSNR/SSIM on the default setup.
 
@@ -31,6 +34,7 @@ its page faults, which varies from process to process (±15 % between runs at 12
 
     .venv/bin/python benchmarks/train.py [--sizes 128,256] [--batches 16,8] [--rounds 7] [--runs K]
                                          [--threads N] [--pause S] [--compile] [--nchw-ab]
+                                         [--amp-ab]
                                          [--data out/data]
 """
 from __future__ import annotations
@@ -65,9 +69,11 @@ def previous_l1_ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 
 def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: torch.Tensor,
-              nchw: bool | None = None):
+              nchw: bool | None = None, amp: bool = False):
     """One training step (forward, ℓ1+SSIM, backward, Adam) of the step ``name`` of :data:`STEPS`;
-    ``nchw`` forces the NCHW weight gradients on or off (None: this CPU's rule)."""
+    ``nchw`` forces the NCHW weight gradients on or off (None: this CPU's rule); ``amp`` runs the
+    forward pass under bf16 autocast, as :func:`~compensation.methods.compennet.fit_network`
+    does with ``amp``."""
     level = STEPS.index(name)
     model = copy.deepcopy(base)
     for m in model.modules():
@@ -88,7 +94,9 @@ def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: t
 
     def step() -> float:
         opt.zero_grad(set_to_none=True)
-        loss = loss_fn(forward(x, s), y)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=amp):
+            pred = forward(x, s)
+        loss = loss_fn(pred.float(), y)
         loss.backward()
         opt.step()
         return loss.item()
@@ -96,14 +104,15 @@ def make_step(name: str, base: CompenNet, x: torch.Tensor, y: torch.Tensor, s: t
     return step
 
 
-def build_step(name: str, size: int, batch: int, threads: int | None, nchw: bool | None = None):
+def build_step(name: str, size: int, batch: int, threads: int | None, nchw: bool | None = None,
+               amp: bool = False):
     """Step ``name`` on seeded random images of ``size``² at ``batch`` (in its worker process)."""
     if threads:
         torch.set_num_threads(threads)
     torch.manual_seed(0)
     base = CompenNet(surface=True)
     x, y, s = torch.rand(batch, 3, size, size), torch.rand(batch, 3, size, size), torch.rand(1, 3, size, size)
-    return make_step(name, base, x, y, s, nchw)
+    return make_step(name, base, x, y, s, nchw, amp)
 
 
 def compare(size: int, batch: int, rounds: int, steps: tuple[str, ...], threads: int | None,
@@ -123,6 +132,21 @@ def nchw_ab(size: int, batch: int, rounds: int, threads: int | None, pause: floa
     return {name: batch / statistics.median(t) for name, t in seconds.items()}
 
 
+def amp_ab(size: int, batch: int, rounds: int, threads: int | None, pause: float) -> dict[str, float]:
+    """Median samples/second of procam's step in float32 and under bf16 autocast, taking turns
+    for ``rounds`` rounds."""
+    seconds = interleaved({label: (build_step, ("retained heap", size, batch, threads, None, on), True)
+                           for label, on in (("float32", False), ("bf16", True))}, rounds, pause)
+    return {name: batch / statistics.median(t) for name, t in seconds.items()}
+
+
+def amp_losses(size: int, batch: int, steps: int) -> dict[str, float]:
+    """The loss after ``steps`` training steps on the same seeded images from the same start, in
+    float32 and under bf16 autocast (in this process)."""
+    return {label: [build_step("retained heap", size, batch, None, None, on)() for _ in range(steps)][-1]
+            for label, on in (("float32", False), ("bf16", True))}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", default="128,256")
@@ -134,6 +158,8 @@ def main() -> None:
     ap.add_argument("--compile", action="store_true", help="also time torch.compile (slow to build)")
     ap.add_argument("--nchw-ab", action="store_true", help="also time procam's step with the NCHW "
                     "weight gradients on against off, whatever this CPU's rule")
+    ap.add_argument("--amp-ab", action="store_true", help="also time procam's step in float32 "
+                    "against bf16 autocast (--amp)")
     ap.add_argument("--data", default=None, help="a dataset root with default/ rendered at the quick "
                     "profile (e.g. the demo's out/data): also time the quick profile on it")
     args = ap.parse_args()
@@ -169,6 +195,16 @@ def main() -> None:
             rates = nchw_ab(size, batch, args.rounds, args.threads, args.pause)
             print(f"  {size}², batch {batch}: on {rates['NCHW on']:.2f}, off {rates['NCHW off']:.2f}, "
                   f"on/off {rates['NCHW on'] / rates['NCHW off']:.3f}×", flush=True)
+    if args.amp_ab:
+        print(f"procam's step, float32 against bf16 autocast (samples/s, median of {args.rounds} "
+              f"interleaved steps; loss after {args.rounds} steps from the same start; bf16 natively: "
+              f"{torch.ops.mkldnn._is_mkldnn_bf16_supported()}):")
+        for size, batch in shapes:
+            rates = amp_ab(size, batch, args.rounds, args.threads, args.pause)
+            losses = amp_losses(size, batch, args.rounds)
+            print(f"  {size}², batch {batch}: float32 {rates['float32']:.2f}, bf16 {rates['bf16']:.2f}, "
+                  f"bf16/float32 {rates['bf16'] / rates['float32']:.2f}×; loss {losses['float32']:.6f} "
+                  f"against {losses['bf16']:.6f}", flush=True)
     print(f"load average after {os.getloadavg()[0]:.1f}")
     if args.data:
         import tempfile

@@ -152,3 +152,25 @@ def test_faster_backward_takes_nchw_weight_gradients_on_avx2_only(monkeypatch, c
         assert ("forward" in vars(model.conv4)) == bool(wide)
         assert "forward" in vars(model.transConv2)
     assert not [n for n, m in model.named_modules() if "forward" in vars(m)]
+
+
+@pytest.mark.parametrize("make, patch", [CASES[0], CASES[3], CASES[5]], ids=[IDS[0], IDS[3], IDS[5]])
+def test_gradients_under_bf16_autocast_are_the_layers_own(make, patch):
+    """Under bf16 autocast (``procam train --amp``) the replacements compute in bf16 as the
+    layers do and hand back float32 gradients: input and weight gradients bit for bit the layers'
+    own under autocast, the bias gradient (summed in float32) within 0.1 % of it; a float32
+    backward would differ from them by over 0.1 %."""
+    torch.manual_seed(4)
+    module = make().to(memory_format=torch.channels_last)
+    x = torch.rand(3, module.in_channels, 10, 14).contiguous(memory_format=torch.channels_last)
+
+    def autocast_gradients(patch):
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            return [g.clone() for g in gradients(module, x, patch)]
+
+    own, got = autocast_gradients(None), autocast_gradients(patch)
+    full = gradients(module, x, None)
+    assert all(g.dtype == torch.float32 for g in got)
+    assert torch.equal(got[0], own[0]) and torch.equal(got[1], own[1])
+    assert (got[2] - own[2]).abs().max() <= 1e-3 * own[2].abs().max()
+    assert (full[1] - own[1]).abs().max() > 1e-3 * own[1].abs().max()  # autocast computed in bf16

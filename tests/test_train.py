@@ -15,7 +15,7 @@ import torch
 from compensation.scores.metrics import evaluate
 from compensation.methods import METHODS, check_config, config_from_dict, get_method, make_config
 from compensation.methods.base import load_state
-from compensation.methods.compennet import CompenNetOptions
+from compensation.methods.compennet import CompenNet, CompenNetOptions
 from compensation.methods.tps import TPSOptions
 from compensation.training.config import COMMON, PROFILES, TrainConfig
 from compensation.training.loop import BatchSampler
@@ -80,7 +80,7 @@ def test_run_directory(run, setup_dir, data):
     config = json.loads((run / "config.json").read_text())
     assert config["train"] == {**tiny_config().to_dict(), "n_train": 16, "n_test": 4}
     assert config["train"]["options"] == {"iters": 100, "batch": 8, "lr": 1e-3, "weight_decay": 1e-4,
-                                          "lr_step": 80, "lr_gamma": 0.2, "loss": "l1+ssim",
+                                          "lr_schedule": "step", "lr_step": 80, "lr_gamma": 0.2, "loss": "l1+ssim",
                                           "sampler": "epoch", "amp": False, "init": None, "patch": 0}
     assert config_from_dict(config["train"]) == replace(tiny_config(), n_train=16, n_test=4)
     assert config["dataset"] == str(setup_dir.resolve())
@@ -107,6 +107,38 @@ def test_learning_rate_steps(setup_dir, tmp_path):
     with open(tmp_path / "r/loss.csv") as f:
         rates = [float(row["lr"]) for row in csv.DictReader(f)]
     assert rates == pytest.approx([1e-3] * 3 + [5e-4] * 3 + [2.5e-4])
+
+
+def test_one_cycle_schedule(setup_dir, tmp_path):
+    """lr / 10 rising to lr over the first 30 % of the steps, then down to lr / 1000, along half
+    cosines; the one-cycle run is not the step run."""
+    train_run(setup_dir, tiny_config(iters=20, lr=2e-3, lr_schedule="one-cycle"), tmp_path / "r",
+              progress=False)
+    with open(tmp_path / "r/loss.csv") as f:
+        rates = [float(row["lr"]) for row in csv.DictReader(f)]
+    peak = 0.3 * 20 - 1
+    rising = [2e-4 + (2e-3 - 2e-4) * (1 - np.cos(np.pi * i / peak)) / 2 for i in range(6)]
+    falling = [2e-6 + (2e-3 - 2e-6) * (1 + np.cos(np.pi * (i - peak) / (19 - peak))) / 2
+               for i in range(6, 20)]
+    assert rates == pytest.approx(rising + falling, rel=1e-5)  # loss.csv keeps 6 digits
+
+
+def test_one_cycle_takes_no_step_options():
+    with pytest.raises(ProcamError, match=re.escape("option lr_step = 5: expected none with "
+                                                    "lr_schedule one-cycle")):
+        CompenNetOptions(lr_schedule="one-cycle", lr_step=5)
+    with pytest.raises(ProcamError, match=re.escape("option lr_gamma = 0.5: expected the default "
+                                                    "with lr_schedule one-cycle")):
+        CompenNetOptions(lr_schedule="one-cycle", lr_gamma=0.5)
+    with pytest.raises(ProcamError, match=re.escape("option lr_schedule = 'cosine': expected "
+                                                    "'step' or 'one-cycle'")):
+        CompenNetOptions(lr_schedule="cosine")
+    # an explicit step option selects the step schedule over a profile's one-cycle
+    stepped = make_config("faithful", lr_step=300).options
+    assert (stepped.lr_schedule, stepped.lr_step) == ("step", 300)
+    assert make_config("faithful", lr_gamma=0.5).options.lr_step == round(0.8 * stepped.iters)
+    with pytest.raises(ProcamError, match="option lr_step = 300: expected none"):
+        make_config("faithful", lr_step=300, lr_schedule="one-cycle")
 
 
 def test_load_run_reproduces_the_metrics(run, data):
@@ -171,14 +203,36 @@ def test_checkpoint_must_be_a_state_dict(tmp_path):
         load_state(tmp_path / "none.pt")
 
 
-def test_amp_flag_changes_nothing_on_cpu(data):
-    weights = []
+def test_amp_trains_under_bf16_autocast_on_cpu(data):
+    """``amp`` on the CPU: the convolutions compute in bf16, the weights stay float32, and the loss
+    curve follows float32 training's to bf16 rounding."""
+    curves, weights, seen = [], [], []
     for amp in (False, True):
         method = get_method("compennet")(device="cpu")
-        method.fit(data, tiny_config(iters=4, amp=amp), progress=False)
+        original = CompenNet.forward
+
+        def spy(self, x, s=None, features=None):
+            out = original(self, x, s, features)
+            seen.append((amp, out.dtype))
+            return out
+
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(CompenNet, "forward", spy)
+            fit = method.fit(data, tiny_config(iters=4, amp=amp), progress=False)
+        curves.append([loss for _, loss, _ in fit.loss_curve])
         weights.append(method.model.state_dict())
-    assert weights[0].keys() == weights[1].keys()
-    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+    assert {dtype for amp, dtype in seen if amp} == {torch.bfloat16}
+    assert {dtype for amp, dtype in seen if not amp} == {torch.float32}
+    assert all(w.dtype == torch.float32 for w in weights[1].values())
+    assert curves[1] == pytest.approx(curves[0], rel=2e-2)
+    assert not all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+
+
+def test_amp_warns_on_a_cpu_without_native_bf16(data, monkeypatch):
+    monkeypatch.setattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", lambda: False)
+    with pytest.warns(UserWarning, match="no native support .* may train slower than in float32 "
+                                         r"\(--no-amp\)"):
+        get_method("compennet")(device="cpu").fit(data, tiny_config(iters=2, amp=True), progress=False)
 
 
 @pytest.mark.slow

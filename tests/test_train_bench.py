@@ -34,7 +34,7 @@ def test_train_benchmark_runs_every_step(monkeypatch):
     import train
 
     out = output("train.py", "--sizes", "16", "--batches", "2", "--rounds", "1", "--runs", "2",
-                 "--threads", "1", "--nchw-ab")
+                 "--threads", "1", "--nchw-ab", "--amp-ab")
     lines = out.splitlines()
     header = lines[1]
     assert header[:11].split() == ["size", "batch"]
@@ -56,6 +56,13 @@ def test_train_benchmark_runs_every_step(monkeypatch):
     assert len(ab) == 1, out
     on, off, ratio = map(float, ab[0])
     assert on > 0 and off > 0 and math.isclose(ratio, on / off, rel_tol=0.01, abs_tol=0.002)
+    amp = re.findall(r"^  16², batch 2: float32 ([\d.]+), bf16 ([\d.]+), bf16/float32 ([\d.]+)×; "
+                     r"loss ([\d.]+) against ([\d.]+)$", out, flags=re.M)
+    assert len(amp) == 1, out
+    full, half, ratio, loss_full, loss_half = map(float, amp[0])
+    assert full > 0 and half > 0 and math.isclose(ratio, half / full, rel_tol=0.01, abs_tol=0.006)
+    # the same steps from the same start: bf16 rounding apart, the same loss
+    assert loss_full > 0 and math.isclose(loss_half, loss_full, rel_tol=0.05) and loss_half != loss_full
 
 
 def test_procams_step_keeps_its_layers_changed(monkeypatch):

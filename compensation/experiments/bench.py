@@ -101,8 +101,8 @@ LOSSES = ("l1", "l2", "ssim", "l1+ssim")
 TABLE2 = dict(n_train=32, iters=500, batch=32)
 """The paper's fine-tuning setting for Table 2 (its run folders name the iterations and batch)."""
 TABLE2_LR_STEP = 800
-"""Table 2's learning-rate step: the official code steps every 800 iterations whatever their
-count, so not within the fine-tuning's 500."""
+"""Table 2's learning-rate step: the official code's step schedule steps every 800 iterations
+whatever their count, so not within the fine-tuning's 500 (whatever schedule the profile takes)."""
 PRETRAIN = "compennet-pretrain"
 """Run folder name of Table 2's pre-training on the white setup."""
 
@@ -153,7 +153,9 @@ def bench_plan(cfg: BenchConfig, out: Path, suite: list | None, setups: list[str
             runs.append(Run(point, white.name, "compennet", max(cfg.sizes), seed,
                             _train_config(cfg, "compennet", max(cfg.sizes)), pretrain,
                             {"table": "pretrain", "variant": PRETRAIN}, scored=False))
-        fixed = {"lr_step": TABLE2_LR_STEP}
+        # the official code's step schedule, unless the user chose another
+        fixed = ({"lr_schedule": "step", "lr_step": TABLE2_LR_STEP}
+                 if cfg.overrides.get("lr_schedule", "step") == "step" else {})
         for s in setups:
             add("2", s, "compennet", TABLE2["n_train"], extra, fixed=fixed)
             if pretrain is not None:

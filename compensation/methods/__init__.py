@@ -45,8 +45,8 @@ def make_config(profile: str = "paper", method: str = "compennet", **values) -> 
     """A TrainConfig from a named profile, the method's profile values and explicit values.
 
     Layers: :data:`PROFILES` ``[profile]``, then the method's ``Options.profiles[profile]``, then
-    ``values`` (common keys of :data:`COMMON` and the method's option names; None values are
-    ignored).
+    what the explicit options imply (``Options.implied``), then ``values`` (common keys of
+    :data:`COMMON` and the method's option names; None values are ignored).
 
     Raises
     ------
@@ -75,8 +75,9 @@ def make_config(profile: str = "paper", method: str = "compennet", **values) -> 
             f"{', '.join(options_cls.names()) or 'none'}; common: {', '.join(COMMON)})")
     common = {k: v for k, v in PROFILES[profile].items() if k in COMMON}
     common.update({k: v for k, v in values.items() if k in COMMON})
-    own = {**options_cls.profiles.get(profile, {}),
-           **{k: v for k, v in values.items() if k in options_cls.names()}}
+    explicit = {k: v for k, v in values.items() if k in options_cls.names()}
+    implied = {k: v for name in explicit for k, v in options_cls.implied.get(name, {}).items()}
+    own = {**options_cls.profiles.get(profile, {}), **implied, **explicit}
     # init is recorded as an absolute path: the same run from any working directory
     if isinstance(own.get("init"), str) and own["init"].strip():
         own["init"] = str(Path(own["init"]).resolve())

@@ -29,6 +29,7 @@ default, optional patch windows), run by the generic loop of :mod:`compensation.
 
 from __future__ import annotations
 
+import warnings
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,6 +70,10 @@ transConv2 double it back)."""
 LR_STEP_SHARE = 0.8
 """Share of the iterations after which the learning rate steps where ``lr_step`` is not given
 (the paper: 800 of 1000)."""
+ONE_CYCLE = dict(pct_start=0.3, div_factor=10.0, final_div_factor=100.0)
+"""The ``one-cycle`` schedule: the share of the steps spent rising, the start's and the end's
+divisors (start ``lr`` / 10, end ``lr`` / 10 / 100), as :class:`torch.optim.lr_scheduler.OneCycleLR`
+takes them."""
 
 
 def _check_images(name: str, t: Tensor) -> None:
@@ -298,21 +303,29 @@ class CompenNetOptions(Options):
     """Adam learning rate (> 0; paper 1e-3)."""
     weight_decay: float = 1e-4
     """Adam L2 weight decay (>= 0; paper 1e-4)."""
+    lr_schedule: Literal["step", "one-cycle"] = "step"
+    """How the learning rate moves: ``step`` (paper), multiplied by ``lr_gamma`` every ``lr_step``
+    steps; ``one-cycle``, from ``lr`` / 10 up to ``lr`` over the first 30 % of the steps, then
+    down to ``lr`` / 1000 at the last, both along a half cosine (:data:`ONE_CYCLE`; it reaches a
+    given PSNR in fewer steps at a higher ``lr``, ``benchmarks/results/patches``)."""
     lr_step: int | None = None
-    """Multiply the learning rate by ``lr_gamma`` every this many steps (>= 1; paper 800). Not
-    given: after 80 % of ``iters`` (:data:`LR_STEP_SHARE`, the paper's 800 of 1000, at any
-    iteration count), resolved when the options are made (``dataclasses.replace`` of ``iters``
-    alone keeps the resolved step)."""
+    """With the ``step`` schedule, multiply the learning rate by ``lr_gamma`` every this many steps
+    (>= 1; paper 800). Not given: after 80 % of ``iters`` (:data:`LR_STEP_SHARE`, the paper's 800
+    of 1000, at any iteration count), resolved when the options are made
+    (``dataclasses.replace`` of ``iters`` alone keeps the resolved step). None with
+    ``one-cycle``."""
     lr_gamma: float = 0.2
-    """Learning-rate decay factor (> 0; paper 0.2)."""
+    """With the ``step`` schedule, the learning-rate decay factor (> 0; paper 0.2)."""
     loss: Literal["l1", "l2", "ssim", "l1+ssim", "l1+l2", "l2+ssim", "l1+l2+ssim"] = "l1+ssim"
     """Training loss (paper ``l1+ssim``: ℓ1 + (1 − SSIM); CompenHR ``l1+l2+ssim``)."""
     sampler: Literal["epoch", "random"] = "epoch"
     """Batch order: ``epoch`` (a seeded permutation per epoch, every pair once per epoch) or
     ``random`` (a fresh random batch each iteration, as the official code draws them)."""
     amp: bool = False
-    """Mixed precision on CUDA (bf16 autocast where supported, else fp16 with a gradient scaler);
-    the CPU path is plain fp32 either way (paper: off)."""
+    """Mixed precision: the network's forward pass under bf16 autocast (on the CPU, and on CUDA
+    where the GPU supports bf16; fp16 with a gradient scaler on older GPUs), weights, optimiser
+    and loss in float32 (paper: off). On a CPU with native bf16 (AVX-512 BF16 or AMX) a step
+    takes about half the time (``benchmarks/train.py``)."""
     init: str | None = None
     """Run directory, or state dict file (``.pth``, e.g. an official CompenNet checkpoint, with or
     without DataParallel's ``module.`` prefix), whose weights initialise the network (pre-training;
@@ -346,8 +359,13 @@ class CompenNetOptions(Options):
         "faithful": dict(patch=64, iters=6000, batch=16),
     }
 
+    implied: ClassVar[dict[str, dict]] = {"lr_step": {"lr_schedule": "step"},
+                                          "lr_gamma": {"lr_schedule": "step"}}
+    """An explicit ``lr_step`` or ``lr_gamma`` selects the step schedule over a profile's."""
+
     def __post_init__(self):
-        if self.lr_step is None and isinstance(self.iters, int) and self.iters >= 1:
+        if (self.lr_step is None and self.lr_schedule == "step" and isinstance(self.iters, int)
+                and self.iters >= 1):
             object.__setattr__(self, "lr_step", max(1, round(LR_STEP_SHARE * self.iters)))
         super().__post_init__()
 
@@ -357,6 +375,12 @@ class CompenNetOptions(Options):
         for name in ("lr", "lr_gamma"):
             self._number(name, positive=True)
         self._number("weight_decay", positive=False)
+        self._require("lr_schedule", self.lr_schedule in ("step", "one-cycle"), "'step' or 'one-cycle'")
+        if self.lr_schedule == "one-cycle":
+            self._require("lr_step", self.lr_step is None, "none with lr_schedule one-cycle (a "
+                          "step of the step schedule)")
+            self._require("lr_gamma", self.lr_gamma == CompenNetOptions.lr_gamma, "the default "
+                          "with lr_schedule one-cycle (a factor of the step schedule)")
         self._require("loss", self.loss in LOSSES, f"one of {', '.join(LOSSES)}")
         self._require("sampler", self.sampler in ("epoch", "random"), "'epoch' or 'random'")
         self._require("amp", isinstance(self.amp, bool), "true or false")
@@ -449,22 +473,26 @@ class CompenNetNoSurfMethod(CompenNetMethod):
     official_name = "CompenNet_wo_surf"
     surface = False
 
-def _autocast_dtype() -> torch.dtype:
-    """Mixed-precision type on CUDA: bf16 where the GPU supports it (no scaler needed), else fp16."""
-    return torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
+def autocast_dtype(device: torch.device) -> torch.dtype:
+    """Mixed-precision type on ``device``: bf16 on the CPU and on GPUs that support it (no scaler
+    needed), else fp16."""
+    if device.type == "cuda" and not torch.cuda.is_bf16_supported():
+        return torch.float16
+    return torch.bfloat16
 
 
 def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_surface: bool,
                 progress: bool = True, checkpoint: Path | None = None) -> FitResult:
     """Train a CompenNet-style ``model`` (already on its device) on ``data.train``: the paper's recipe.
 
-    Adam(lr, weight_decay), StepLR(lr_step, lr_gamma), batches as ``cfg.options.sampler``
+    Adam(lr, weight_decay), the learning-rate schedule of ``cfg.options.lr_schedule`` (the
+    paper's: StepLR(lr_step, lr_gamma)), batches as ``cfg.options.sampler``
     draws them, the loss named by ``cfg.options.loss``; with ``use_surface`` the network's surface
     branch is fed s̃ with batch 1, broadcast over the batch (computed once per batch, not once per
     sample). With ``cfg.options.patch`` > 0 every step trains on one random window of that side cut
-    out of the batch's captures, frames and the surface alike (:class:`CropSampler`). On CUDA with
-    ``cfg.options.amp``, autocast plus a gradient scaler (fp16 only); on the CPU the amp flag
-    changes nothing.
+    out of the batch's captures, frames and the surface alike (:class:`CropSampler`). With
+    ``cfg.options.amp`` the forward pass runs under autocast (:func:`autocast_dtype`; a gradient
+    scaler for fp16 only).
 
     The network and the images are kept in the channels-last memory layout while training
     (oneDNN's native layout on the CPU, ``benchmarks/train.py`` measures its effect; the layout of
@@ -481,12 +509,16 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     """
     opt = cfg.options
     device = next(model.parameters()).device
-    use_amp = opt.amp and device.type == "cuda"
-    amp_dtype = _autocast_dtype() if use_amp else torch.float32
+    use_amp = opt.amp and device.type in ("cpu", "cuda")
+    amp_dtype = autocast_dtype(device) if use_amp else torch.float32
+    if use_amp and device.type == "cpu" and not torch.ops.mkldnn._is_mkldnn_bf16_supported():
+        warnings.warn(f"{data.name}: amp trains in bf16, for which this CPU has no native support "
+                      "(AVX-512 BF16 or AMX): it may train slower than in float32 (--no-amp)",
+                      stacklevel=2)
     scaler = torch.amp.GradScaler(device.type, enabled=use_amp and amp_dtype == torch.float16)
     model.to(memory_format=torch.channels_last)
     optimizer = torch.optim.Adam(model.parameters(), lr=opt.lr, weight_decay=opt.weight_decay)
-    scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=opt.lr_step, gamma=opt.lr_gamma)
+    scheduler = _scheduler(optimizer, opt)
     loss_fn = get_loss(opt.loss)
     captures = _channels_last(data.train.captures.to(device))
     frames = _channels_last(data.train.frames.to(device))
@@ -526,6 +558,24 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     finally:
         model.to(memory_format=torch.contiguous_format)
     return FitResult.of_loop(result)
+
+
+def _scheduler(optimizer: torch.optim.Optimizer,
+               opt: CompenNetOptions) -> torch.optim.lr_scheduler.LRScheduler:
+    """The learning-rate schedule ``opt.lr_schedule`` names, over ``opt.iters`` steps.
+
+    >>> opt = CompenNetOptions(iters=10, lr=1e-3, lr_schedule="one-cycle")
+    >>> adam = torch.optim.Adam([torch.zeros(1, requires_grad=True)], lr=opt.lr)
+    >>> schedule, rates = _scheduler(adam, opt), []
+    >>> for _ in range(opt.iters):
+    ...     rates.append(schedule.get_last_lr()[0]); adam.step(); schedule.step()
+    >>> round(rates[0], 7), round(max(rates), 7), round(rates[-1], 9), rates.index(max(rates))
+    (0.0001, 0.001, 1e-06, 2)
+    """
+    if opt.lr_schedule == "one-cycle":
+        return torch.optim.lr_scheduler.OneCycleLR(optimizer, max_lr=opt.lr, total_steps=opt.iters,
+                                                   cycle_momentum=False, **ONE_CYCLE)
+    return torch.optim.lr_scheduler.StepLR(optimizer, step_size=opt.lr_step, gamma=opt.lr_gamma)
 
 
 def _channels_last(images: torch.Tensor) -> torch.Tensor:

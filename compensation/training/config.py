@@ -38,6 +38,10 @@ class Options:
 
     profiles: ClassVar[dict[str, dict]] = {}
     """Field values per training profile, layered over the field defaults."""
+    implied: ClassVar[dict[str, dict]] = {}
+    """Values an explicitly given option implies, by option name: they replace the profile's
+    (an explicit value of their own still wins), so that an option of one mode, given alone,
+    selects that mode."""
 
     def __post_init__(self):
         self.check()

@@ -18,6 +18,10 @@ CPU it runs on; ``benchmarks/train.py`` times it.
   5-7 % slower). So only on AVX2 (:data:`NCHW_WEIGHT_GRADIENT_CPUS`) do the wide convolutions
   compute their weight and bias gradients from NCHW copies of the input and of the output
   gradient; forward and input gradient stay channels-last.
+
+Under bf16 autocast a layer's forward computes in bf16 from its float32 weight; the replacements
+take their backward in the output gradient's type too and return float32 weight and bias
+gradients, as the layers' own backward does.
 """
 from __future__ import annotations
 
@@ -55,13 +59,15 @@ class _Conv2d(torch.autograd.Function):
         x, weight = ctx.saved_tensors
         stride, padding, has_bias = ctx.geometry
         fixed = (stride, padding, [1, 1], False, [0, 0], 1)
+        x, w = x.to(grad.dtype), weight.to(grad.dtype)  # autocast's computing type
         grad_x = None
         if ctx.needs_input_grad[0]:
-            grad_x = _backward(grad, x, weight, None, *fixed, [True, False, False])[0]
-        _, grad_w, grad_b = _backward(grad.contiguous(), x.contiguous(), weight.contiguous(),
+            grad_x = _backward(grad, x, w, None, *fixed, [True, False, False])[0]
+        _, grad_w, grad_b = _backward(grad.contiguous(), x.contiguous(), w.contiguous(),
                                       [weight.shape[0]] if has_bias else None, *fixed,
                                       [False, True, has_bias])
-        return grad_x, grad_w, grad_b, None, None
+        return (grad_x, grad_w.to(weight.dtype), None if grad_b is None else grad_b.to(weight.dtype),
+                None, None)
 
 
 class _ConvTranspose2d(torch.autograd.Function):
@@ -79,14 +85,15 @@ class _ConvTranspose2d(torch.autograd.Function):
     def backward(ctx, grad):
         x, weight = ctx.saved_tensors
         stride, padding, dilation = ctx.geometry
+        x, w = x.to(grad.dtype), weight.to(grad.dtype)  # autocast's computing type
         grad_x = grad_w = grad_b = None
         if ctx.needs_input_grad[0]:
-            grad_x = F.conv2d(grad, weight, None, stride, padding, dilation)
+            grad_x = F.conv2d(grad, w, None, stride, padding, dilation)
         if ctx.needs_input_grad[1]:
-            grad_w = _backward(x, grad, weight, None, stride, padding, dilation, False, [0, 0], 1,
-                               [False, True, False])[1]
+            grad_w = _backward(x, grad, w, None, stride, padding, dilation, False, [0, 0], 1,
+                               [False, True, False])[1].to(weight.dtype)
         if ctx.needs_input_grad[2]:
-            grad_b = grad.sum((0, 2, 3))
+            grad_b = grad.sum((0, 2, 3), dtype=weight.dtype)
         return grad_x, grad_w, grad_b, None, None, None, None
 
 
