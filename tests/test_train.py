@@ -375,7 +375,8 @@ def test_make_config_profiles_and_errors():
     faithful = make_config("faithful")
     f = faithful.options
     assert (faithful.n_train, faithful.n_test, PROFILES["faithful"]["size"]) == (125, 100, 256)
-    assert (f.patch, f.iters, f.batch, f.lr_step, f.lr, f.loss) == (64, 6000, 16, 4800, 1e-3, "l1+ssim")
+    assert (f.patch, f.iters, f.batch, f.lr, f.lr_schedule, f.lr_step, f.amp, f.loss) == \
+        (64, 5000, 16, 2e-3, "one-cycle", None, True, "l1+ssim")
     assert make_config("faithful", "tps").options == make_config("paper", "tps").options
     assert make_config("faithful", "tps-textured").options == make_config("paper", "tps-textured").options
     assert config_from_dict(faithful.to_dict()) == faithful
