@@ -5,15 +5,18 @@ counts, at a size the CPU allows.
 Renders the checkout's ``default`` setup (``--size``², ``--train`` / ``--test`` pairs) into a
 temporary root, or uses a rendered setup folder (``--data``, e.g. the demo's ``data/default``),
 then trains CompenNet from scratch for each crop side, batch size of ``--batches``, iteration
-count of ``--iters`` and seed of ``--seeds`` (the chart plots the mean over seeds; the paper's
-recipe otherwise, the learning-rate step after 80 % of the
-iterations) and scores the test pairs. Writes ``patches.csv`` and ``patches.png`` into ``--out``
+count of ``--iters``, learning rate of ``--lrs`` and seed of ``--seeds`` (the chart plots the
+mean over seeds; the paper's recipe otherwise, the learning-rate step after 80 % of the
+iterations; ``--schedule one-cycle`` and ``--amp`` train as the faithful profile does) and scores
+the test pairs. Writes ``patches.csv`` and ``patches.png`` into ``--out``
 (default ``benchmarks/results/patches``). The CSV is rewritten after every point and a point it
-already holds (same crop, batch, iterations and seed) is not trained again: rerun the same command
-to go on after an interruption, or with more values to add points.
+already holds (same crop, batch, iterations, learning rate, schedule, precision and seed) is not
+trained again: rerun the same command to go on after an interruption, or with more values to add
+points.
 
     .venv/bin/python benchmarks/patches.py [--size 64] [--patches 0,32,16] [--iters 75,150,300]
-                                           [--batches 16] [--data DIR] [--seeds 0]
+                                           [--batches 16] [--lrs 1e-3] [--schedule step] [--amp]
+                                           [--data DIR] [--seeds 0]
 """
 from __future__ import annotations
 
@@ -42,6 +45,24 @@ from sim.setup import load_setups  # noqa: E402
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "default.toml"
 
 
+RECIPE = (1e-3, "step", 0)
+"""The paper's learning rate, schedule and precision (float32): the values of a CSV row written
+before these columns were."""
+
+
+def _row(r: dict) -> dict:
+    """A row of ``patches.csv`` with its values typed (the paper's recipe where a column is missing)."""
+    floats, texts = ("train_seconds", "psnr", "ssim", "uncompensated_psnr", "lr"), ("schedule",)
+    row = dict(zip(("lr", "schedule", "amp"), RECIPE))
+    row.update({k: float(v) if k in floats else v if k in texts else int(v) for k, v in r.items()})
+    return row
+
+
+def _key(r: dict) -> tuple:
+    """What makes a point of ``patches.csv`` another point."""
+    return r["patch"], r["batch"], r["iters"], r["seed"], r["lr"], r["schedule"], r["amp"]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--size", type=int, default=64)
@@ -51,6 +72,10 @@ def main() -> None:
     ap.add_argument("--iters", default="75,150,300")
     ap.add_argument("--batches", default="16", help="batch sizes")
     ap.add_argument("--seeds", default="0", help="training seeds")
+    ap.add_argument("--lrs", default="1e-3", help="learning rates")
+    ap.add_argument("--schedule", default="step", choices=("step", "one-cycle"),
+                    help="learning-rate schedule")
+    ap.add_argument("--amp", action="store_true", help="train under bf16 autocast")
     ap.add_argument("--data", default=None, help="a rendered setup folder to use instead")
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "patches"))
@@ -63,9 +88,8 @@ def main() -> None:
     rows = []
     if table.exists():
         with open(table, newline="") as f:
-            rows = [{k: float(v) if k in ("train_seconds", "psnr", "ssim", "uncompensated_psnr") else int(v)
-                     for k, v in r.items()} for r in csv.DictReader(f)]
-    done = {(r["patch"], r["batch"], r["iters"], r["seed"]) for r in rows}
+            rows = [_row(r) for r in csv.DictReader(f)]
+    done = {_key(r) for r in rows}
     with tempfile.TemporaryDirectory() as tmp:
         if args.data:
             folder = Path(args.data)
@@ -79,28 +103,33 @@ def main() -> None:
         print(f"{folder} at {size}², {len(data.train)} train / {len(data.test)} test pairs, "
               f"{torch.get_num_threads()} threads, load {os.getloadavg()[0]:.1f}; "
               f"uncompensated PSNR {base['psnr']:.2f} dB")
-        for patch, batch, iters, seed in itertools.product(
-                *([int(v) for v in a.split(",")] for a in (args.patches, args.batches, args.iters, args.seeds))):
-            if (patch, batch, iters, seed) in done:
+        lrs = [float(v) for v in args.lrs.split(",")]
+        for patch, batch, iters, seed, lr in itertools.product(
+                *([int(v) for v in a.split(",")] for a in (args.patches, args.batches, args.iters, args.seeds)),
+                lrs):
+            recipe = {"lr": lr, "schedule": args.schedule, "amp": int(args.amp)}
+            if _key({"patch": patch, "batch": batch, "iters": iters, "seed": seed, **recipe}) in done:
                 continue
-            options = CompenNetOptions(iters=iters, batch=batch, patch=patch)
+            options = CompenNetOptions(iters=iters, batch=batch, patch=patch, lr=lr,
+                                       lr_schedule=args.schedule, amp=args.amp)
             cfg = TrainConfig(method="compennet", options=options, n_train=None, n_test=None,
                               seed=seed, device="cpu")
             method = CompenNetMethod("cpu")
             fit = method.fit(data, cfg, progress=False)
             scores = evaluate(method.predict(data.test.captures, data.surface), data.test.frames)
-            rows.append({"patch": patch, "batch": batch, "iters": iters, "seed": seed,
+            rows.append({"patch": patch, "batch": batch, "iters": iters, "seed": seed, **recipe,
                          "train_seconds": round(fit.seconds, 2), "psnr": round(scores["psnr"], 3),
                          "ssim": round(scores["ssim"], 4), "uncompensated_psnr": round(base["psnr"], 3)})
             print(rows[-1], flush=True)
             write_csv(table, list(rows[-1]), rows, digits=None)
     fig, ax = plt.subplots(figsize=(6, 4))
-    for patch, batch in dict.fromkeys((r["patch"], r["batch"]) for r in rows):
-        mine = [r for r in rows if (r["patch"], r["batch"]) == (patch, batch)]
+    for patch, batch, *recipe in dict.fromkeys(_key(r)[:2] + _key(r)[4:] for r in rows):
+        mine = [r for r in rows if _key(r)[:2] + _key(r)[4:] == (patch, batch, *recipe)]
         points = {i: [r for r in mine if r["iters"] == i] for i in dict.fromkeys(r["iters"] for r in mine)}
         ax.plot([statistics.fmean(r["train_seconds"] for r in p) for p in points.values()],
                 [statistics.fmean(r["psnr"] for r in p) for p in points.values()], "o-",
-                label=(f"{patch}² crops" if patch else f"full {size}² images") + f", batch {batch}")
+                label=(f"{patch}² crops" if patch else f"full {size}² images") + f", batch {batch}"
+                + ("" if tuple(recipe) == RECIPE else f", lr {recipe[0]:g} {recipe[1]}{' bf16' * recipe[2]}"))
     ax.axhline(base["psnr"], color="gray", ls=":", label="uncompensated")
     ax.set_xlabel("training time (s, CPU)")
     ax.set_ylabel("test PSNR (dB)")

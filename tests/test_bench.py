@@ -253,6 +253,16 @@ def test_table2_keeps_the_official_learning_rate_step(tmp_path):
     assert steps("quick") == {"1": (500, 400, "compennet-n125-seed0"),
                               "2": (500, 800, "compennet-n32-seed0-iters500-batch32")}
     assert steps("quick", lr_step=100)["2"][1] == 100  # the user's word wins
+    # the faithful profile's one-cycle at lr 2e-3 trains Table 1; Table 2 keeps the official step
+    # at the paper's rate, unless the user asks for one-cycle
+    plan = bench_plan(BenchConfig(profile="faithful", methods=("compennet",), sizes=(125,),
+                                  tables=("1", "2")), tmp_path, None, ["s1"])
+    options = {r.labels["table"]: r.cfg.options for r in plan.runs}
+    assert (options["1"].lr_schedule, options["1"].lr, options["1"].lr_step) == ("one-cycle", 2e-3, None)
+    assert (options["2"].lr_schedule, options["2"].lr, options["2"].lr_step) == ("step", 1e-3, 800)
+    plan = bench_plan(BenchConfig(profile="faithful", methods=("compennet",), sizes=(125,), tables=("2",),
+                                  overrides={"lr_schedule": "one-cycle"}), tmp_path, None, ["s1"])
+    assert [(r.cfg.options.lr_schedule, r.cfg.options.lr) for r in plan.runs] == [("one-cycle", 2e-3)]
 
 
 def test_a_bench_whose_frames_cannot_be_held_names_its_sizes_and_writes_nothing(tmp_path, capsys):

@@ -3,6 +3,7 @@ every step runs in its own process, the table names the steps measured, and each
 the ratio of the rates (or times) printed beside it, the naive loop (default layout) the unit."""
 from __future__ import annotations
 
+import csv
 import gc
 import math
 import re
@@ -102,3 +103,27 @@ def test_a_failing_step_stops_the_benchmark_with_its_message():
     assert proc.returncode == 1
     assert "benchmark step 'default layout' failed: ProcamError: 16x16 pixels" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+@pytest.mark.slow
+def test_patches_benchmark_keys_points_by_their_recipe(setup_dir, tmp_path):
+    """benchmarks/patches.py: a point per crop, batch, iterations, seed, learning rate, schedule and
+    precision; a rerun trains only the points the CSV does not hold, and rows written before the
+    recipe columns read as the paper's recipe."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "patches.csv").write_text("patch,batch,iters,seed,train_seconds,psnr,ssim,uncompensated_psnr\n"
+                                     "16,4,3,0,1.0,20.0,0.5,15.0\n")
+    common = ("--data", str(setup_dir), "--patches", "16", "--batches", "4", "--iters", "3",
+              "--threads", "1", "--out", str(out))
+    first = output("patches.py", *common, "--lrs", "1e-3,2e-3", "--schedule", "one-cycle", "--amp")
+    trained = [line for line in first.splitlines() if line.startswith("{")]
+    assert len(trained) == 2 and all("'schedule': 'one-cycle', 'amp': 1" in line for line in trained)
+    again = output("patches.py", *common)  # the paper's recipe: the old row holds it
+    assert not [line for line in again.splitlines() if line.startswith("{")]
+    with open(out / "patches.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["lr"], r["schedule"], r["amp"]) for r in rows] == [("0.001", "step", "0"),
+                                                                  ("0.001", "one-cycle", "1"),
+                                                                  ("0.002", "one-cycle", "1")]
+    assert all(float(r["psnr"]) > 0 for r in rows) and (out / "patches.png").stat().st_size > 0

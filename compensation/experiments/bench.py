@@ -33,6 +33,7 @@ from compensation.experiments.jobs import check_study_folder, simulated, write_r
 from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name
 from compensation.experiments.targets import TargetPolicy
 from compensation.methods import applicable, check_runnable, get_method, make_config
+from compensation.methods.compennet import CompenNetOptions
 from compensation.training.config import COMMON, PROFILES
 from sim.dataset import FrameSpec
 from sim.errors import DatasetError, ProcamError
@@ -153,8 +154,8 @@ def bench_plan(cfg: BenchConfig, out: Path, suite: list | None, setups: list[str
             runs.append(Run(point, white.name, "compennet", max(cfg.sizes), seed,
                             _train_config(cfg, "compennet", max(cfg.sizes)), pretrain,
                             {"table": "pretrain", "variant": PRETRAIN}, scored=False))
-        # the official code's step schedule, unless the user chose another
-        fixed = ({"lr_schedule": "step", "lr_step": TABLE2_LR_STEP}
+        # the official code's step schedule at the paper's rate, unless the user chose another
+        fixed = ({"lr_schedule": "step", "lr_step": TABLE2_LR_STEP, "lr": CompenNetOptions.lr}
                  if cfg.overrides.get("lr_schedule", "step") == "step" else {})
         for s in setups:
             add("2", s, "compennet", TABLE2["n_train"], extra, fixed=fixed)
