@@ -31,7 +31,7 @@ def test_gpu_benchmark_dry_run_on_cpu(tmp_path, capsys):
     assert json.loads((tmp_path / "gpu.json").read_text()) == result
     training = result["training"]
     assert (training["size"], training["pairs"], training["iters"], training["batch"], training["amp"]) == \
-           (32, 8, 2, 4, False)
+           (32, 8, 2, 4, True)  # bf16 autocast, on the CPU too
     # the rate is the loop's: iterations × batch over the loop's seconds, within the whole fit's
     assert math.isclose(training["samples_per_second"], 2 * 4 / training["loop_seconds"], rel_tol=1e-9)
     assert 0 < training["loop_seconds"] <= training["fit_seconds"] and training["predict_seconds"] > 0
@@ -41,7 +41,7 @@ def test_gpu_benchmark_dry_run_on_cpu(tmp_path, capsys):
     assert render["setups"][0]["captures"] == 2 + 1 + 126  # train, test, 125 plain colours + gray
     assert render["operator_nnz"] > 32 * 32 and set(render["project_seconds_per_frame"]) == {"cpu"}
     out = capsys.readouterr().out
-    assert (f"training CompenNet 32², 8 pairs, 2 iterations, batch 4, AMP False: "
+    assert (f"training CompenNet 32², 8 pairs, 2 iterations, batch 4, AMP True: "
             f"{training['fit_seconds']:.1f} s ({training['samples_per_second']:.0f} samples/s)") in out
     assert f"render ideal ({render['setups'][0]['variant']}, transport): 129 captures" in out
     width, height = render["projector_size"]

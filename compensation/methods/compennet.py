@@ -325,7 +325,7 @@ class CompenNetOptions(Options):
     """Mixed precision: the network's forward pass under bf16 autocast (on the CPU, and on CUDA
     where the GPU supports bf16; fp16 with a gradient scaler on older GPUs), weights, optimiser
     and loss in float32 (paper: off). On a CPU with native bf16 (AVX-512 BF16 or AMX) a step
-    takes about half the time (``benchmarks/train.py``)."""
+    is about 1.7× as fast (``benchmarks/train.py --amp-ab``)."""
     init: str | None = None
     """Run directory, or state dict file (``.pth``, e.g. an official CompenNet checkpoint, with or
     without DataParallel's ``module.`` prefix), whose weights initialise the network (pre-training;
@@ -354,10 +354,10 @@ class CompenNetOptions(Options):
         # benchmarks/results/patches/README.md) the paper's full-image recipe (1000 iterations
         # of 64, ~2 h on 2 cores) scores 27.78 dB; 64² windows at batch 16 with the paper's step
         # schedule reach 26.29, 27.22 and 27.79 dB after 2000, 4000 and 6000 iterations (4.9,
-        # 9.2 and 13.7 min in float32). bf16 autocast trains the same to 0.01 dB in about half
-        # the time on a CPU with native bf16; the one-cycle schedule at lr 2e-3 reaches 27.45 and
-        # 27.54 dB after 4400 and 5000 iterations (3e-3: 27.36 and 27.34). So 5000 iterations,
-        # one-cycle at 2e-3, in bf16: 0.24 dB below the paper's recipe.
+        # 9.2 and 13.7 min in float32). bf16 autocast learns the same (26.29 dB at 2000, 0.12
+        # dB lower at 6000) 1.7× as fast on a CPU with native bf16; one-cycle at lr 2e-3 reaches
+        # 27.45 and 27.54 dB after 4400 and 5000 iterations (3e-3: 27.36 and 27.34). So 5000
+        # iterations, one-cycle at 2e-3, in bf16: 0.24 dB below the paper's recipe.
         "faithful": dict(patch=64, iters=5000, batch=16, lr=2e-3, lr_schedule="one-cycle", amp=True),
     }
 
