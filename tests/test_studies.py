@@ -111,7 +111,7 @@ def test_profile_override(tmp_path):
     assert (study.profile, study.size, study.n_train, study.n_test) == ("faithful", (256, 256), (125,), 7)
     assert study.overrides == {"profile": "faithful"}
     runs = {r.method: r.cfg for r in expand(study).runs}
-    assert (runs["compennet"].options.patch, runs["compennet"].options.iters) == (64, 6000)
+    assert (runs["compennet"].options.patch, runs["compennet"].options.iters) == (64, 5000)
     assert runs["tps"].options.scale_invariant and runs["compennet"].profile == "faithful"
     assert load_study(tmp_path / "study.toml").size == (64, 64) and load_study(tmp_path / "study.toml").overrides == {}
     with pytest.raises(ProcamError, match="--profile 'fast': expected one of paper, quick, faithful"):
