@@ -124,19 +124,12 @@ def compare(size: int, batch: int, rounds: int, steps: tuple[str, ...], threads:
     return {name: batch / statistics.median(t) for name, t in seconds.items()}
 
 
-def nchw_ab(size: int, batch: int, rounds: int, threads: int | None, pause: float) -> dict[str, float]:
-    """Median samples/second of procam's step with the NCHW weight gradients on and off, taking
-    turns for ``rounds`` rounds."""
-    seconds = interleaved({f"NCHW {label}": (build_step, ("retained heap", size, batch, threads, on), True)
-                           for label, on in (("on", True), ("off", False))}, rounds, pause)
-    return {name: batch / statistics.median(t) for name, t in seconds.items()}
-
-
-def amp_ab(size: int, batch: int, rounds: int, threads: int | None, pause: float) -> dict[str, float]:
-    """Median samples/second of procam's step in float32 and under bf16 autocast, taking turns
-    for ``rounds`` rounds."""
-    seconds = interleaved({label: (build_step, ("retained heap", size, batch, threads, None, on), True)
-                           for label, on in (("float32", False), ("bf16", True))}, rounds, pause)
+def ab(size: int, batch: int, rounds: int, threads: int | None, pause: float,
+       arms: dict[str, tuple[bool | None, bool]]) -> dict[str, float]:
+    """Median samples/second of procam's step in each arm, by label: its ``(nchw, amp)`` values of
+    :func:`make_step`, the arms taking turns for ``rounds`` rounds."""
+    seconds = interleaved({label: (build_step, ("retained heap", size, batch, threads, *arm), True)
+                           for label, arm in arms.items()}, rounds, pause)
     return {name: batch / statistics.median(t) for name, t in seconds.items()}
 
 
@@ -192,7 +185,8 @@ def main() -> None:
         print("procam's step, NCHW weight gradients on against off (samples/s, median of "
               f"{args.rounds} interleaved steps):")
         for size, batch in shapes:
-            rates = nchw_ab(size, batch, args.rounds, args.threads, args.pause)
+            rates = ab(size, batch, args.rounds, args.threads, args.pause,
+                       {"NCHW on": (True, False), "NCHW off": (False, False)})
             print(f"  {size}², batch {batch}: on {rates['NCHW on']:.2f}, off {rates['NCHW off']:.2f}, "
                   f"on/off {rates['NCHW on'] / rates['NCHW off']:.3f}×", flush=True)
     if args.amp_ab:
@@ -200,7 +194,8 @@ def main() -> None:
               f"interleaved steps; loss after {args.rounds} steps from the same start; bf16 natively: "
               f"{torch.ops.mkldnn._is_mkldnn_bf16_supported()}):")
         for size, batch in shapes:
-            rates = amp_ab(size, batch, args.rounds, args.threads, args.pause)
+            rates = ab(size, batch, args.rounds, args.threads, args.pause,
+                       {"float32": (None, False), "bf16": (None, True)})
             losses = amp_losses(size, batch, args.rounds)
             print(f"  {size}², batch {batch}: float32 {rates['float32']:.2f}, bf16 {rates['bf16']:.2f}, "
                   f"bf16/float32 {rates['bf16'] / rates['float32']:.2f}×; loss {losses['float32']:.6f} "

@@ -154,8 +154,9 @@ def bench_plan(cfg: BenchConfig, out: Path, suite: list | None, setups: list[str
             runs.append(Run(point, white.name, "compennet", max(cfg.sizes), seed,
                             _train_config(cfg, "compennet", max(cfg.sizes)), pretrain,
                             {"table": "pretrain", "variant": PRETRAIN}, scored=False))
-        # the official code's step schedule at the paper's rate, unless the user chose another
-        fixed = ({"lr_schedule": "step", "lr_step": TABLE2_LR_STEP, "lr": CompenNetOptions.lr}
+        # the official code's step schedule (lr_step selects it) at the paper's rate, unless the
+        # user chose another
+        fixed = ({"lr_step": TABLE2_LR_STEP, "lr": CompenNetOptions.lr}
                  if cfg.overrides.get("lr_schedule", "step") == "step" else {})
         for s in setups:
             add("2", s, "compennet", TABLE2["n_train"], extra, fixed=fixed)
