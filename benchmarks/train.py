@@ -52,7 +52,7 @@ import torch.nn.functional as F
 
 from compensation.scores.losses import l1, l1_ssim
 from compensation.scores.metrics import gaussian_window
-from compensation.methods.compennet import CompenNet
+from compensation.methods.compennet import CompenNet, native_bf16
 from compensation.training.conv_grad import faster_backward, nchw_weight_gradients_pay
 from interleave import interleaved
 
@@ -192,7 +192,7 @@ def main() -> None:
     if args.amp_ab:
         print(f"procam's step, float32 against bf16 autocast (samples/s, median of {args.rounds} "
               f"interleaved steps; loss after {args.rounds} steps from the same start; bf16 natively: "
-              f"{torch.ops.mkldnn._is_mkldnn_bf16_supported()}):")
+              f"{native_bf16()}):")
         for size, batch in shapes:
             rates = ab(size, batch, args.rounds, args.threads, args.pause,
                        {"float32": (None, False), "bf16": (None, True)})

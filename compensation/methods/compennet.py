@@ -483,6 +483,11 @@ def autocast_dtype(device: torch.device) -> torch.dtype:
     return torch.bfloat16
 
 
+def native_bf16() -> bool:
+    """Whether this CPU computes bf16 natively (AVX-512 BF16 or AMX), as oneDNN reports it."""
+    return torch.ops.mkldnn._is_mkldnn_bf16_supported()
+
+
 def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_surface: bool,
                 progress: bool = True, checkpoint: Path | None = None) -> FitResult:
     """Train a CompenNet-style ``model`` (already on its device) on ``data.train``: the paper's recipe.
@@ -513,7 +518,7 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     device = next(model.parameters()).device
     use_amp = opt.amp and device.type in ("cpu", "cuda")
     amp_dtype = autocast_dtype(device) if use_amp else torch.float32
-    if use_amp and device.type == "cpu" and not torch.ops.mkldnn._is_mkldnn_bf16_supported():
+    if use_amp and device.type == "cpu" and not native_bf16():
         warnings.warn(f"{data.name}: amp trains in bf16, for which this CPU has no native support "
                       "(AVX-512 BF16 or AMX): it may train slower than in float32 (--no-amp)",
                       stacklevel=2)
