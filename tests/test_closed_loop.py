@@ -239,3 +239,23 @@ def test_closed_loop_refuses_a_simulator_that_differs_from_the_dataset(tmp_path)
         with pytest.raises(DatasetError, match=key):
             simulator_for(setup_dir)
     meta_path.write_text(json.dumps(meta))
+
+
+
+def test_the_simulator_of_a_dataset_is_reused_until_its_files_change(tmp_path):
+    """A reused simulator captures what a new one would, bit for bit; a dataset written again gets
+    a new one."""
+    from sim.io import atomic_write
+
+    setup_dir = write_setup(tmp_path, tiny_setup(surface={"texture": "noise"}), FrameSpec(2, 2, (32, 32)),
+                            progress=False)
+    sim = simulator_for(setup_dir)
+    assert simulator_for(setup_dir) is sim
+    frames = np.random.default_rng(0).integers(0, 256, (2, 32, 32, 3), np.uint8)
+    captured = sim.capture(frames, seeds.CLOSED_LOOP)
+    meta = setup_dir / "meta.json"
+    atomic_write(meta, meta.read_bytes())  # the same bytes, written again
+    fresh = simulator_for(setup_dir)
+    assert fresh is not sim and simulator_for(setup_dir) is fresh
+    assert np.array_equal(fresh.capture(frames, seeds.CLOSED_LOOP), captured)
+    assert np.array_equal(sim.capture(frames, seeds.CLOSED_LOOP), captured)  # used before: the same

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -39,11 +40,48 @@ REACH_TOLERANCE = 2 / 255
 """Slack (encoded units) for the reachable test: two 8-bit levels of camera noise."""
 
 
+SIMULATORS_KEPT = 2
+"""Simulators :func:`simulator_for` keeps in the process, the most recently used: a bench or study
+projects every method's frames, the oracle's and the optimum's through the same setup one job
+after the other, and building a simulator (Mitsuba scene, transport operator, registration
+captures) costs seconds at the paper's 960x640 camera."""
+_SIMULATORS: OrderedDict[tuple, Simulator] = OrderedDict()
+
+
 def simulator_for(setup_dir: str | Path) -> Simulator:
     """The simulator a dataset was rendered with: its resolved ``setup.toml`` plus the canonical
     size, fidelity, spp, path depth and camera exposure recorded in ``meta.json`` (a transport
-    operator comes from the cache; the exposure rule's preview is not rendered again)."""
+    operator comes from the cache; the exposure rule's preview is not rendered again).
+
+    The last :data:`SIMULATORS_KEPT` are reused while the dataset's ``meta.json`` and
+    ``setup.toml`` stay the same (the Mitsuba variant is chosen once per process): a simulator keeps no state between
+    captures (each is seeded by its stream and index), so a reused one captures exactly what a
+    new one would.
+    """
     setup_dir = Path(setup_dir)
+    key = (str(setup_dir.resolve()), _stamp(setup_dir / META_FILE), _stamp(setup_dir / SETUP_FILE))
+    if key in _SIMULATORS:
+        _SIMULATORS.move_to_end(key)
+        return _SIMULATORS[key]
+    sim = _new_simulator(setup_dir)
+    _SIMULATORS[key] = sim
+    while len(_SIMULATORS) > SIMULATORS_KEPT:
+        _SIMULATORS.popitem(last=False)
+    return sim
+
+
+def _stamp(path: Path) -> tuple[int, int, int] | None:
+    """A file's inode, modification time and size (None if it is missing): what changes when it
+    is written again (procam writes by renaming a new file over the old)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns, st.st_size
+
+
+def _new_simulator(setup_dir: Path) -> Simulator:
+    """:func:`simulator_for` without the reuse."""
     meta = read_json(setup_dir / META_FILE, "dataset metadata")
     setup = load_setup(setup_dir / SETUP_FILE)
     size = canonical_size(meta)
