@@ -1,7 +1,12 @@
 """Timing steps side by side, each in a process of its own: the steps take turns, one call each per
 round with a short pause before each, so a machine shared with other jobs slows them alike, and no
 step's memory policy or allocations touch another's (glibc's heap state alone moved a CompenNet
-step's speed by 25 % when the steps shared a process)."""
+step's speed by 25 % when the steps shared a process).
+
+The step processes are forked from one server process that has imported the benchmark script (and
+so torch and procam) once, before any computation: each starts in a fraction of a second, where a
+fresh interpreter took about 3.5 s of CPU per step and run to import torch and what its optimiser
+imports on first use, and every step starts from the same heap."""
 from __future__ import annotations
 
 import multiprocessing
@@ -50,7 +55,10 @@ def interleaved(steps: dict[str, tuple[Callable[..., Callable[[], object]], tupl
     pause : float
         Seconds of rest before each call (the previous step's threads go idle).
     """
-    spawn = multiprocessing.get_context("spawn")
+    spawn = multiprocessing.get_context("forkserver")
+    # before the server starts (the first call's setting holds); torch's optimisers import
+    # torch._dynamo on their first construction, 1.6 s of a step's start
+    spawn.set_forkserver_preload(["__main__", "torch._dynamo"])
     workers = {}
     try:
         for name, (build, args, heap) in steps.items():
