@@ -10,10 +10,14 @@ from sim.variant import FALLBACK, choose_variant
 
 VARIANTS = sorted({choose_variant(), FALLBACK})
 
-LONGEST_MODULES = ("test_nonsquare.py", "test_demo.py")
-"""Test modules that take over a minute each (measured serially on 2 cores: 88 s and 85 s, the next 53 s):
-they are collected first, so that under ``make test`` (pytest-xdist, whole files per worker) the
-workers start on them instead of ending on one of them while the other core idles."""
+LONGEST_MODULES = ("test_nonsquare.py", "test_demo.py", "test_faults_render.py",
+                   "test_faults_compensation.py", "test_signature_bench.py", "test_train_resume.py",
+                   "test_executors.py", "test_train_bench.py", "test_bench.py", "test_studies.py",
+                   "test_report.py", "test_optimum.py", "test_progress.py", "test_methods_contract.py")
+"""The test modules that take half a minute or more, longest first (measured under ``make test`` on
+2 cores: 150 s and 130 s for the first two, 30 s for the last): they are collected first, in this
+order, so that pytest-xdist (whole files per worker, the next file to the first worker free) ends
+on short modules instead of one core idling while the other finishes a long one."""
 
 
 def pytest_configure(config):
@@ -98,7 +102,8 @@ def pytest_collection_modifyitems(items):
     import numpy as np
     from _pytest.doctest import DoctestItem
 
-    items.sort(key=lambda item: item.path.name not in LONGEST_MODULES)  # stable: the rest keep their order
+    rank = {name: i for i, name in enumerate(LONGEST_MODULES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
     for item in items:
         if isinstance(item, DoctestItem):
             def runtest(run=item.runtest):

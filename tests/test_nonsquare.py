@@ -11,6 +11,7 @@ from compensation.cli import main
 from compensation.data import load_setup_data
 from compensation.experiments.closed_loop import closed_loop, simulator_for
 from compensation.methods import METHODS, applicable, make_config
+from compensation.methods.compennet import native_bf16
 from compensation.experiments.runs import load_run, train_run
 from compensation.experiments.targets import TargetPolicy
 from sim.dataset import FrameSpec, write_setup
@@ -18,8 +19,10 @@ from sim.io import read_json, read_png, write_png
 
 SIZES = {"square": (48, 48), "wide": (48, 32)}
 """Canonical (width, height) views of one setup."""
-SMALL = dict(n_train=16, n_test=4, iters=100, batch=8, device="cpu")
-"""A budget of seconds per method (options a method does not take are dropped)."""
+SMALL = dict(n_train=16, n_test=4, iters=100, batch=8, device="cpu", amp=native_bf16())
+"""A budget of seconds per method (options a method does not take are dropped): CompenNet trains in
+bf16 where the CPU computes it natively (its step 1.6x faster at this size on one thread; the
+module 113 → 94 s alone), which changes no conclusion below."""
 PIX2PIX_ITERS = 30
 """pix2pix's iterations: at 30 as at 100 it stays below uncompensated on both views (measured
 surrogate gain −1.8 / −1.4 dB square / wide at 30, −1.5 / −1.2 at 100), so only the equality of the
@@ -63,6 +66,7 @@ def gains(tmp_path_factory):
                 method, _ = load_run(run)
                 found.append((metrics["psnr"] - metrics["uncompensated"]["psnr"],
                               closed_loop(method, data, sim, policy=AS_IS)["psnr"] - plain))
+                pass
             out[view][name] = tuple(float(np.median(g)) for g in zip(*found))
             out[view]["runs"][name] = root / "runs" / f"{name}-seed0"
     return out
@@ -86,8 +90,9 @@ def test_same_gain_as_the_square_view(gains, name):
 @pytest.mark.slow
 def test_every_method_gains_on_the_wide_view(gains):
     """Not only equal: the per-pixel methods and CompenNet compensate at 48x32. Measured
-    (surrogate dB): TPS +10.9, TPS textured +9.3, Nayar +11.2 (closed loop +1.8 to +2.0);
-    CompenNet +4.0 to +4.2 after 100 iterations (median of its seeds); most of this surface's
+    (surrogate dB): TPS +10.2, TPS textured +8.7, Nayar +10.4 (closed loop +1.8 to +1.9);
+    CompenNet +3.7, w/o surf +3.9 after 100 iterations in bf16 (medians of the seeds; a dead start
+    of seed 0 at −0.2); most of this surface's
     desired pixels are out of the projector's reach, which bounds every closed-loop gain. pix2pix,
     with a budget of seconds, does not beat uncompensated and is only required to match its square
     self above."""
