@@ -10,12 +10,12 @@ from sim.variant import FALLBACK, choose_variant
 
 VARIANTS = sorted({choose_variant(), FALLBACK})
 
-LONGEST_MODULES = ("test_nonsquare.py", "test_demo.py", "test_faults_render.py",
-                   "test_faults_compensation.py", "test_signature_bench.py", "test_train_resume.py",
-                   "test_executors.py", "test_train_bench.py", "test_bench.py", "test_studies.py",
-                   "test_report.py", "test_optimum.py", "test_progress.py", "test_methods_contract.py")
+LONGEST_MODULES = ("test_demo.py", "test_nonsquare.py", "test_faults_render.py",
+                   "test_faults_compensation.py", "test_signature_bench.py", "test_executors.py",
+                   "test_train_resume.py", "test_studies.py", "test_bench.py", "test_train_bench.py",
+                   "test_optimum.py", "test_progress.py", "test_methods_contract.py", "test_report.py")
 """The test modules that take half a minute or more, longest first (measured under ``make test`` on
-2 cores: 150 s and 130 s for the first two, 30 s for the last): they are collected first, in this
+2 cores: 117 s and 103 s for the first two, 29 s for the last): they are collected first, in this
 order, so that pytest-xdist (whole files per worker, the next file to the first worker free) ends
 on short modules instead of one core idling while the other finishes a long one."""
 
