@@ -126,6 +126,28 @@ def test_only_in_the_study_file_selects_setups():
         "nayar-n125-seed0", "compennet-n125-seed0"}  # reference lines: one fit per setup
 
 
+def test_a_study_on_a_suite_renders_the_suites_test_frames(tmp_path, monkeypatch):
+    """As ``procam render`` and ``procam bench`` do: the base suite's ``test_frames``, else mixed."""
+    import compensation.experiments.jobs as jobs
+    from compensation.experiments.studies import run_study
+
+    (tmp_path / "base.toml").write_text(BASE)
+    (tmp_path / "suite.toml").write_text('base = "base.toml"\ntest_frames = "photo"\n\n[[setup]]\nname = "a"\n')
+    kinds = []
+
+    def refuse(root, setup, spec, *args, **kwargs):
+        kinds.append(spec.test_frames)
+        raise ProcamError("simulated refusal")
+
+    monkeypatch.setattr(jobs, "write_setup", refuse)
+    for base, kind in (("suite.toml", "photo"), ("base.toml", "mixed")):
+        study = STUDY.replace('base = "base.toml"', f'base = "{base}"').replace('name = "tiny"', f'name = "{kind}"')
+        (tmp_path / f"{kind}.toml").write_text(study)
+        run_study(load_study(tmp_path / f"{kind}.toml"), tmp_path / kind, progress=False)
+        assert set(kinds) == {kind}, base
+        kinds.clear()
+
+
 def test_bad_only_is_named(tmp_path):
     (tmp_path / "base.toml").write_text(BASE)
     (tmp_path / "study.toml").write_text(

@@ -78,7 +78,7 @@ from sim.layout import N_PLAIN
 from sim.light import AXIS_SHARES, SHARE_NAMES
 from sim.options import repeated
 from sim.seeds import SEED_MAX
-from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup
+from sim.setup import Setup, dump_setup, load_setups, merge_setup, parse_setup, suite_test_frames
 from sim.setup.schema import SECTIONS
 from sim.setup.toml import read_toml
 
@@ -613,7 +613,8 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
 
     Every job runs whatever the others do: a setup that cannot be rendered or a run that fails
     gives rows of status ``failed`` with the error; an interruption stops the study (run it
-    again to go on).
+    again to go on). The datasets take the test frames the base suite asks for (its
+    ``test_frames``, as ``procam render`` and ``procam bench`` do), else ``mixed``.
 
     Parameters
     ----------
@@ -646,7 +647,8 @@ def run_study(study: Study, out: Path, executor=None, progress: bool = True) -> 
     executor = executor or LocalExecutor()
     plan = expand(study)
     try:
-        spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size)
+        spec = FrameSpec(max(r.n_train for r in plan.runs), study.n_test, study.size,
+                         test_frames=suite_test_frames(base_path(study)) or "mixed")
     except DatasetError as e:
         raise ProcamError(f"{study.path}: {e}") from None
     check_study_folder(out, study.name, "study")
