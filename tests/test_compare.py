@@ -177,3 +177,31 @@ def test_per_image_runs_with_a_gap_or_a_repeat_are_refused(folders, capsys, case
     assert err.startswith("procam: error: ") and str(b / "per_image.csv") in err and "Traceback" not in err
     assert {"dropped": "lacks image(s) 1 (expected images 1 to 2)", "twice": "image 1 of run point 0",
             "not a number": "column image: expected a test image number"}[case] in err
+
+
+def test_the_same_axes_in_another_order_are_matched(tmp_path, capsys):
+    """A two-factor study and the same study with its axes listed the other way round: every run
+    matched, A's axis order naming the columns."""
+    values = {"k1": [0.0, 1.0], "k2": [5.0]}
+
+    def folder(name: str, order: list[str], shift: float) -> Path:
+        rows = []
+        for p in (0, 1):
+            row = _row(p, "tps", 0, shift, f"p{p}")
+            del row[AXIS]
+            rows.append({**row, "k1": values["k1"][p], "k2": values["k2"][0]})
+        path = tmp_path / name
+        path.mkdir()
+        (path / "study.json").write_text(json.dumps({
+            "name": name, "kind": "study", "methods": ["tps"], "seeds": [0],
+            "axes": [{"key": k, "values": values[k]} for k in order]}))
+        write_results(path, order, rows)
+        return path
+
+    a, b = folder("a", ["k1", "k2"], 0.0), folder("b", ["k2", "k1"], 0.5)
+    assert main(["compare", str(a), str(b)]) == 0
+    assert "2 run(s) matched, 0 only in A, 0 only in B" in capsys.readouterr().out
+    rows = csv_rows(a / "compare-b" / "compare.csv")
+    assert list(rows[0]).index("k1") < list(rows[0]).index("k2")
+    run = _scored(rows, "run", "psnr", k1=1, k2=5)
+    assert float(run["diff"]) == pytest.approx(0.5)

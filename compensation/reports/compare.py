@@ -45,11 +45,15 @@ def key_columns(study_a: dict, study_b: dict, a: str = "A", b: str = "B") -> lis
     Raises
     ------
     ProcamError
-        If one folder is a study and the other a bench, or their axes differ (``a``, ``b`` name them).
+        If one folder is a study and the other a bench, or their axes differ (``a``, ``b`` name them;
+        the same axes in another order are the same axes).
 
     >>> key_columns({"kind": "study", "axes": [{"key": "n_train", "values": [8, 16]}]}, {"axes": [
     ...     {"key": "n_train", "values": [16, 32]}]})
     ['n_train', 'setup', 'method', 'seed']
+    >>> key_columns({"axes": [{"key": "k1", "values": [1]}, {"key": "k2", "values": [2]}]},
+    ...             {"axes": [{"key": "k2", "values": [2]}, {"key": "k1", "values": [1]}]})
+    ['k1', 'k2', 'setup', 'method', 'n_train', 'seed']
     >>> key_columns({"kind": "bench", "axes": []}, {"kind": "bench", "axes": []})
     ['table', 'setup', 'method', 'n_train', 'variant', 'seed']
     """
@@ -58,7 +62,7 @@ def key_columns(study_a: dict, study_b: dict, a: str = "A", b: str = "B") -> lis
         raise ProcamError(f"{a} is a {kinds[0]} folder, {b} a {kinds[1]} folder: expected two studies or "
                           "two benches")
     axes = [axis_keys(s) for s in (study_a, study_b)]
-    if axes[0] != axes[1]:
+    if sorted(axes[0]) != sorted(axes[1]):  # the same axes in any order: A's order names the columns
         raise ProcamError(f"{a} sweeps {', '.join(axes[0]) or 'no axis'}, {b} sweeps "
                           f"{', '.join(axes[1]) or 'no axis'}: expected studies of the same axes")
     if kinds[0] == "bench":
