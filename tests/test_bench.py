@@ -117,7 +117,10 @@ def test_runs_take_the_options_of_their_method(bench):
 
     assert train("s1", "compennet-n4-seed0")["options"]["iters"] == 3
     assert train("s1", "compennet-n4-seed0")["options"]["batch"] == 2
-    assert set(train("s1", "tps-n8-seed0")["options"]) == {"smoothing", "scale_invariant", "workers"}  # --iters is not tps's
+    assert set(train("s1", "tps-n125-seed0")["options"]) == {"smoothing", "scale_invariant", "workers"}  # --iters is not tps's
+    # the plain-colour methods fit their 125 captures once per setup, for both sizes' rows
+    assert sorted(p.name for p in (runs / "s1").glob("tps-n*")) == ["tps-n125-seed0"]
+    assert sorted(p.name for p in (runs / "s1").glob("nayar-n*")) == ["nayar-n125-seed0"]
     for loss in ("l1", "l2", "ssim", "l1+ssim"):
         assert train("s2", f"compennet-n8-seed0-loss{slug(loss)}")["options"]["loss"] == loss
     pretrained = train("s1", "compennet-n32-seed0-iters500-batch32-initpretrained")

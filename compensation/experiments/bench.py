@@ -37,7 +37,7 @@ from compensation.methods.compennet import CompenNetOptions
 from compensation.training.config import COMMON, PROFILES
 from sim.dataset import FrameSpec
 from sim.errors import DatasetError, ProcamError
-from sim.layout import SETUP_FILE, capture_dir
+from sim.layout import N_PLAIN, SETUP_FILE, capture_dir
 
 
 @dataclass(frozen=True)
@@ -125,7 +125,8 @@ def table1_options(cfg: BenchConfig) -> dict[str, dict]:
 
 
 def bench_plan(cfg: BenchConfig, out: Path, suite: list | None, setups: list[str], white=None) -> Plan:
-    """The runs of the bench's tables on ``setups`` (one point): Table 1's methods × sizes,
+    """The runs of the bench's tables on ``setups`` (one point): Table 1's methods × sizes (a
+    method on the plain colours fitted once per setup for all sizes),
     Table 2's He-initialised and pre-trained CompenNet (the pre-training on ``white`` first, run
     folder ``runs/<white>/compennet-pretrain``), Table 3's losses. Each run is labelled with its
     ``table`` and ``variant`` (the run folder's name)."""
@@ -135,8 +136,12 @@ def bench_plan(cfg: BenchConfig, out: Path, suite: list | None, setups: list[str
 
     def add(table: str, setup: str, method: str, n: int, varied: dict, after: str | None = None,
             fixed: dict | None = None):
-        name = run_name(method, n, seed, {**varied, **({"init": "pretrained"} if after else {})})
-        train_cfg = _train_config(cfg, method, n, **varied, **(fixed or {}),
+        # a method on the plain colours fits the same 125 captures at every size: one run (loading
+        # the fewest pairs, named for the 125 it fits) gives each size's row
+        plain = get_method(method).plain_colours
+        name = run_name(method, N_PLAIN if plain else n, seed,
+                        {**varied, **({"init": "pretrained"} if after else {})})
+        train_cfg = _train_config(cfg, method, min(cfg.sizes) if plain else n, **varied, **(fixed or {}),
                                   init=str((Path(out) / after).resolve()) if after else None)
         runs.append(Run(point, setup, method, n, seed, train_cfg, f"runs/{setup}/{name}",
                         {"table": table, "variant": name}, after))
@@ -295,7 +300,8 @@ def run_bench(suite: list | None, out: Path, cfg: BenchConfig, data_root: Path |
                "loss": r.cfg.options.loss if r.labels["table"] == "3" else None,
                "init": r.cfg.options.init if r.after else None, "run": record["run"]}
         if record["ok"]:
-            rows.append({**job, "official_tag": record["official_tag"], **record["metrics"]})
+            # the row's size, not the fit's (a plain-colour run serves every size)
+            rows.append({**job, "official_tag": record["official_tag"], **record["metrics"], "n_train": r.n_train})
         else:
             failures.append({**job, "error": record["error"], "traceback": record.get("traceback", "")})
     uncompensated, oracle, optimum, sizes = {}, {}, {}, set()
