@@ -66,7 +66,6 @@ def gains(tmp_path_factory):
                 method, _ = load_run(run)
                 found.append((metrics["psnr"] - metrics["uncompensated"]["psnr"],
                               closed_loop(method, data, sim, policy=AS_IS)["psnr"] - plain))
-                pass
             out[view][name] = tuple(float(np.median(g)) for g in zip(*found))
             out[view]["runs"][name] = root / "runs" / f"{name}-seed0"
     return out
@@ -92,10 +91,9 @@ def test_every_method_gains_on_the_wide_view(gains):
     """Not only equal: the per-pixel methods and CompenNet compensate at 48x32. Measured
     (surrogate dB): TPS +10.2, TPS textured +8.7, Nayar +10.4 (closed loop +1.8 to +1.9);
     CompenNet +3.7, w/o surf +3.9 after 100 iterations in bf16 (medians of the seeds; a dead start
-    of seed 0 at −0.2); most of this surface's
-    desired pixels are out of the projector's reach, which bounds every closed-loop gain. pix2pix,
-    with a budget of seconds, does not beat uncompensated and is only required to match its square
-    self above."""
+    of seed 0 at −0.2); most of this surface's desired pixels are out of the projector's reach,
+    which bounds every closed-loop gain. pix2pix, with a budget of seconds, does not beat
+    uncompensated and is only required to match its square self above."""
     for name in ("tps", "tps-textured", "nayar"):
         assert gains["wide"][name][0] > 7.0 and gains["wide"][name][1] > 1.0, (name, gains["wide"][name])
     for name in ("compennet", "compennet-nosurf"):

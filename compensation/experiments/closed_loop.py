@@ -54,9 +54,9 @@ def simulator_for(setup_dir: str | Path) -> Simulator:
     operator comes from the cache; the exposure rule's preview is not rendered again).
 
     The last :data:`SIMULATORS_KEPT` are reused while the dataset's ``meta.json`` and
-    ``setup.toml`` stay the same (the Mitsuba variant is chosen once per process): a simulator keeps no state between
-    captures (each is seeded by its stream and index), so a reused one captures exactly what a
-    new one would.
+    ``setup.toml`` stay the same (the Mitsuba variant is chosen once per process): a simulator
+    keeps no state between captures (each is seeded by its stream and index), so a reused one
+    captures exactly what a new one would.
     """
     setup_dir = Path(setup_dir)
     key = (str(setup_dir.resolve()), _stamp(setup_dir / META_FILE), _stamp(setup_dir / SETUP_FILE))
