@@ -55,15 +55,15 @@ def interleaved(steps: dict[str, tuple[Callable[..., Callable[[], object]], tupl
     pause : float
         Seconds of rest before each call (the previous step's threads go idle).
     """
-    spawn = multiprocessing.get_context("forkserver")
+    forks = multiprocessing.get_context("forkserver")
     # before the server starts (the first call's setting holds); torch's optimisers import
     # torch._dynamo on their first construction, 1.6 s of a step's start
-    spawn.set_forkserver_preload(["__main__", "torch._dynamo"])
+    forks.set_forkserver_preload(["__main__", "torch._dynamo"])
     workers = {}
     try:
         for name, (build, args, heap) in steps.items():
-            here, there = spawn.Pipe()
-            proc = spawn.Process(target=_serve, args=(there, build, args, heap), daemon=True)
+            here, there = forks.Pipe()
+            proc = forks.Process(target=_serve, args=(there, build, args, heap), daemon=True)
             proc.start()
             workers[name] = (proc, here)
         for name, (_, conn) in workers.items():
