@@ -417,3 +417,29 @@ def test_tps_fit_uses_the_smoothing_option(name, data, tmp_path):
 def test_tps_options_are_checked(options, message):
     with pytest.raises(ProcamError, match=re.escape(message)):
         tps.TPSTexturedOptions(**options)
+
+
+def test_the_spline_solves_run_on_one_blas_thread(monkeypatch):
+    """OpenBLAS's threads made each 129 × 129 solve slower (a singular pixel's least squares 27×
+    on 2 cores): the fit sets every loaded OpenBLAS to one thread, and restores it after."""
+    import compensation.methods.tps as tps
+    from sim.blas import _libraries
+
+    libraries = _libraries()
+    assert libraries  # NumPy's and SciPy's wheels each bundle an OpenBLAS
+    before = [get() for get, _ in libraries]
+    seen = []
+    real = tps.fit_pixel_splines
+
+    def spy(*args, **kwargs):
+        seen.append([get() for get, _ in libraries])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(tps, "fit_pixel_splines", spy)
+    rng = np.random.default_rng(0)
+    centres, values = rng.random((8, 6, 3)), rng.random((8, 6, 3))
+    centres[:, :2] = 0.0  # two clipped samples: singular at λ = 0, solved by least squares
+    coeffs, _, degenerate = tps.fit_splines(centres, values, 0.0, workers=1)
+    assert degenerate == 8 and np.isfinite(coeffs).all()
+    assert seen and all(threads == [1] * len(libraries) for threads in seen)
+    assert [get() for get, _ in libraries] == before

@@ -96,6 +96,7 @@ from compensation.data import PairSet
 from compensation.methods.base import FitResult, Method, load_arrays, plain_colour_pairs, resolve_device
 from compensation.training.config import Options, TrainConfig
 from compensation.training.loop import fit_label
+from sim.blas import one_blas_thread
 from sim.cores import usable_cores
 from sim.errors import ProcamError
 
@@ -242,7 +243,9 @@ def fit_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOO
 
     Pixels are split into tasks (see :data:`_TASK_SIZE`); each worker runs
     :func:`fit_pixel_splines` on one task at a time. Workers are forked on Linux (no re-import
-    of torch); one worker runs in this process without a pool.
+    of torch); one worker runs in this process without a pool. OpenBLAS computes on one thread
+    meanwhile (:func:`sim.blas.one_blas_thread`): its threads made each small solve slower, the
+    least squares of a singular pixel 27× slower on 2 cores.
 
     Parameters
     ----------
@@ -285,7 +288,8 @@ def fit_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOO
     workers = min(usable_cores() if workers is None else workers, -(-count // chunk))  # no idle worker
     coeffs = np.empty((count, n + 4, 3), np.float32)
     residual, degenerate, done = 0.0, 0, 0
-    with tqdm(total=count, desc=desc, unit="px", disable=not progress) as bar:
+    # one BLAS thread here and in the workers forked inside: each solve is too small to share
+    with one_blas_thread(), tqdm(total=count, desc=desc, unit="px", disable=not progress) as bar:
         if workers <= 1:
             pool, results = None, map(_fit_task, tasks)
         else:
