@@ -46,6 +46,11 @@ def _libraries() -> list[tuple[Callable, Callable]]:
     return found
 
 
+def openblas_threads() -> list[int]:
+    """The thread count of every OpenBLAS loaded in this process (empty where there is none)."""
+    return [get() for get, _ in _libraries()]
+
+
 @contextmanager
 def one_blas_thread() -> Iterator[int]:
     """While inside, every OpenBLAS of this process computes on one thread (worker processes
@@ -59,9 +64,10 @@ def one_blas_thread() -> Iterator[int]:
     Examples
     --------
     >>> import scipy.linalg  # loads SciPy's OpenBLAS
+    >>> before = openblas_threads()
     >>> with one_blas_thread() as changed:
-    ...     inside = [get() for get, _ in _libraries()]
-    >>> changed == len(inside) and all(n == 1 for n in inside)
+    ...     inside = openblas_threads()
+    >>> changed == len(inside) and all(n == 1 for n in inside) and openblas_threads() == before
     True
     """
     libraries = _libraries()

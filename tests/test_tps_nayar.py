@@ -423,16 +423,15 @@ def test_the_spline_solves_run_on_one_blas_thread(monkeypatch):
     """OpenBLAS's threads made each 129 × 129 solve slower (a singular pixel's least squares 27×
     on 2 cores): the fit sets every loaded OpenBLAS to one thread, and restores it after."""
     import compensation.methods.tps as tps
-    from sim.blas import _libraries
+    from sim.blas import openblas_threads
 
-    libraries = _libraries()
-    assert libraries  # NumPy's and SciPy's wheels each bundle an OpenBLAS
-    before = [get() for get, _ in libraries]
+    before = openblas_threads()
+    assert before  # NumPy's and SciPy's wheels each bundle an OpenBLAS
     seen = []
     real = tps.fit_pixel_splines
 
     def spy(*args, **kwargs):
-        seen.append([get() for get, _ in libraries])
+        seen.append(openblas_threads())
         return real(*args, **kwargs)
 
     monkeypatch.setattr(tps, "fit_pixel_splines", spy)
@@ -441,5 +440,19 @@ def test_the_spline_solves_run_on_one_blas_thread(monkeypatch):
     centres[:, :2] = 0.0  # two clipped samples: singular at λ = 0, solved by least squares
     coeffs, _, degenerate = tps.fit_splines(centres, values, 0.0, workers=1)
     assert degenerate == 8 and np.isfinite(coeffs).all()
-    assert seen and all(threads == [1] * len(libraries) for threads in seen)
-    assert [get() for get, _ in libraries] == before
+    assert seen and all(threads == [1] * len(before) for threads in seen)
+    assert openblas_threads() == before
+
+
+def test_the_tps_benchmark_times_both_arms():
+    """``benchmarks/tps.py``: each kind of pixel with both arms' medians and their ratio."""
+    from helpers import run_benchmark
+
+    proc = run_benchmark("tps.py", "--pixels", "24", "--samples", "12", "--rounds", "1", "--workers", "1")
+    assert proc.returncode == 0, proc.stderr
+    rows = re.findall(r"^  (regular|singular) \(λ = ([\d.e-]+)\): OpenBLAS threads as loaded ([\d.]+), "
+                      r"one thread ([\d.]+), speed-up ([\d.]+)×$", proc.stdout, flags=re.M)
+    assert [(kind, float(lam)) for kind, lam, *_ in rows] == [("regular", 0.01), ("singular", 0.0)], proc.stdout
+    for *_, default, one, ratio in rows:
+        assert float(default) > 0 and float(one) > 0
+        assert float(ratio) == pytest.approx(float(default) / float(one), rel=0.01, abs=0.006)
