@@ -4,12 +4,11 @@ libraries this process has loaded.
 OpenBLAS parallelises a level-3 call over all cores even at sizes where starting its threads costs
 more than the work: a minimum-norm least squares (``gelsy``) of a 129 × 129 thin-plate spline
 system took 30 ms with two threads against 1.1 ms with one on a 2-core machine (another job
-running beside), and the spline
-fits of :mod:`compensation.methods.tps` run one worker process per core on top. NumPy and SciPy
-each bundle their own OpenBLAS (their symbols prefixed ``scipy_`` and, for 64-bit integers,
-suffixed ``64_``); this module finds every OpenBLAS mapped into the process (``/proc/self/maps``)
-and sets each one's thread count. Where there is none (another BLAS, or no ``/proc``) it does
-nothing.
+running beside), and the spline fits of :mod:`compensation.methods.tps` run one worker process
+per core on top. NumPy and SciPy each bundle their own OpenBLAS (their symbols prefixed
+``scipy_`` and, for 64-bit integers, suffixed ``64_``); this module finds every OpenBLAS mapped
+into the process (``/proc/self/maps``) and sets each one's thread count. Where there is none
+(another BLAS, or no ``/proc``) it does nothing.
 """
 from __future__ import annotations
 
@@ -34,7 +33,7 @@ def _libraries() -> list[tuple[Callable, Callable]]:
     found = []
     for path in paths:
         try:
-            lib = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | ctypes.RTLD_GLOBAL)
+            lib = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_LAZY)  # only if loaded, scope kept
         except OSError:
             continue
         for name in _NAMES:
