@@ -420,8 +420,9 @@ def test_tps_options_are_checked(options, message):
 
 
 def test_the_spline_solves_run_on_one_blas_thread(monkeypatch):
-    """OpenBLAS's threads made each 129 × 129 solve slower (a singular pixel's least squares 27×
-    on 2 cores): the fit sets every loaded OpenBLAS to one thread, and restores it after."""
+    """OpenBLAS's threads made a singular pixel's 129 × 129 least squares slower (4.9× on 2 free
+    cores, 20-80× with another job beside): the fit sets every loaded OpenBLAS to one thread, and
+    restores it after."""
     import compensation.methods.tps as tps
     from sim.blas import openblas_threads
 

@@ -244,8 +244,9 @@ def fit_splines(centres: np.ndarray, values: np.ndarray, smoothing: float = SMOO
     Pixels are split into tasks (see :data:`_TASK_SIZE`); each worker runs
     :func:`fit_pixel_splines` on one task at a time. Workers are forked on Linux (no re-import
     of torch); one worker runs in this process without a pool. OpenBLAS computes on one thread
-    meanwhile (:func:`sim.blas.one_blas_thread`): its threads made each small solve slower, the
-    least squares of a singular pixel 27× slower on 2 cores.
+    meanwhile (:func:`sim.blas.one_blas_thread`): its threads made a singular pixel's least squares
+    4.9× slower on 2 free cores and 20-80× slower with another job beside, and gained nothing on a
+    regular pixel (``benchmarks/tps.py``).
 
     Parameters
     ----------
