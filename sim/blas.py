@@ -28,8 +28,8 @@ def _libraries() -> list[tuple[Callable, Callable]]:
         maps = Path("/proc/self/maps").read_text().splitlines()
     except OSError:
         return []
-    paths = dict.fromkeys(line.split(None, 5)[5] for line in maps
-                          if len(line.split(None, 5)) == 6 and "openblas" in line.rsplit("/", 1)[-1])
+    fields = (line.split(None, 5) for line in maps)  # address, perms, offset, dev, inode, path
+    paths = dict.fromkeys(f[5] for f in fields if len(f) == 6 and "openblas" in Path(f[5]).name)
     found = []
     for path in paths:
         try:

@@ -30,14 +30,15 @@ from pathlib import Path
 
 from compensation.experiments.executors import LocalExecutor
 from compensation.experiments.jobs import check_study_folder, simulated, write_results, write_study_record
-from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name
+from compensation.experiments.plans import (Plan, Point, Run, Scoring, execute, fit_sizes, result_rows,
+                                           run_name)
 from compensation.experiments.targets import TargetPolicy
 from compensation.methods import applicable, check_runnable, get_method, make_config
 from compensation.methods.compennet import CompenNetOptions
 from compensation.training.config import COMMON, PROFILES
 from sim.dataset import FrameSpec
 from sim.errors import DatasetError, ProcamError
-from sim.layout import N_PLAIN, SETUP_FILE, capture_dir
+from sim.layout import SETUP_FILE, capture_dir
 
 
 @dataclass(frozen=True)
@@ -136,12 +137,9 @@ def bench_plan(cfg: BenchConfig, out: Path, suite: list | None, setups: list[str
 
     def add(table: str, setup: str, method: str, n: int, varied: dict, after: str | None = None,
             fixed: dict | None = None):
-        # a method on the plain colours fits the same 125 captures at every size: one run (loading
-        # the fewest pairs, named for the 125 it fits) gives each size's row
-        plain = get_method(method).plain_colours
-        name = run_name(method, N_PLAIN if plain else n, seed,
-                        {**varied, **({"init": "pretrained"} if after else {})})
-        train_cfg = _train_config(cfg, method, min(cfg.sizes) if plain else n, **varied, **(fixed or {}),
+        fit_n, named_n = fit_sizes(method, n, min(cfg.sizes))
+        name = run_name(method, named_n, seed, {**varied, **({"init": "pretrained"} if after else {})})
+        train_cfg = _train_config(cfg, method, fit_n, **varied, **(fixed or {}),
                                   init=str((Path(out) / after).resolve()) if after else None)
         runs.append(Run(point, setup, method, n, seed, train_cfg, f"runs/{setup}/{name}",
                         {"table": table, "variant": name}, after))

@@ -23,9 +23,11 @@ from compensation.experiments.executors import Task
 from compensation.experiments.jobs import (BaselineJob, FitJob, RenderJob, baselines, fit, render,
                                           result_row, tasks)
 from compensation.experiments.targets import TargetPolicy
+from compensation.methods import get_method
 from compensation.training.config import TrainConfig
 from sim.dataset import FrameSpec
 from sim.errors import ProcamError
+from sim.layout import N_PLAIN
 from sim.setup import Setup
 
 
@@ -52,6 +54,18 @@ def run_name(method: str, n_train: int, seed: int, varied: Mapping) -> str:
     'compennet-n125-seed0-iters500-lossl1ssim'
     """
     return f"{method}-n{n_train}-seed{seed}" + "".join(f"-{k}{slug(v)}" for k, v in varied.items())
+
+
+def fit_sizes(method: str, n_train: int, fewest: int) -> tuple[int, int]:
+    """The training pairs a run of ``method`` loads and the number its folder is named for, for a
+    row of ``n_train`` pairs: a method on the plain colours fits the same 125 captures whatever
+    the row's size, so every size shares one run, which loads the ``fewest`` pairs of the plan and
+    is named for the 125 it fits.
+
+    >>> fit_sizes("tps", 500, 125), fit_sizes("tps-textured", 500, 125)
+    ((125, 125), (500, 500))
+    """
+    return (fewest, N_PLAIN) if get_method(method).plain_colours else (n_train, n_train)
 
 
 @dataclass(frozen=True)

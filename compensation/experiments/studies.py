@@ -66,7 +66,8 @@ from pathlib import Path
 
 from compensation.experiments.executors import LocalExecutor
 from compensation.experiments.jobs import cell_identity, check_study_folder, write_results, write_study_record
-from compensation.experiments.plans import Plan, Point, Run, Scoring, execute, result_rows, run_name, slug
+from compensation.experiments.plans import (Plan, Point, Run, Scoring, execute, fit_sizes, result_rows,
+                                           run_name, slug)
 from compensation.experiments.targets import DEFAULT_OUT_OF_REACH, TargetPolicy
 from compensation.methods import applicable, check_runnable, get_method, make_config, option_owners
 from compensation.methods.compennet import SIZE_MULTIPLE
@@ -74,7 +75,6 @@ from compensation.training.config import COMMON, PROFILES, TrainConfig
 from sim.dataset import FrameSpec
 from sim.descriptors import DESCRIPTORS
 from sim.errors import DatasetError, ProcamError
-from sim.layout import N_PLAIN
 from sim.light import AXIS_SHARES, SHARE_NAMES
 from sim.options import repeated
 from sim.seeds import SEED_MAX
@@ -534,12 +534,12 @@ def _run(study: Study, point: Point, setup: str, method: str, n_train: int, seed
     (its run loads the study's ``fewest`` and is named for the 125 it fits); an unseeded fit
     (:meth:`~compensation.methods.base.Method.seeded`), for every seed (the study's first)."""
     cls = get_method(method)
-    fit_n = fewest if cls.plain_colours else n_train
+    fit_n, named_n = fit_sizes(method, n_train, fewest)
     cfg = _train_config(study, method, fit_n, seed, point)
     if not cls.seeded(cfg):
         cfg = replace(cfg, seed=study.seeds[0])
     varied = {k: v for k, v in applicable(method, _of(study, point, False)).items() if k != "n_train"}
-    name = run_name(method, N_PLAIN if cls.plain_colours else n_train, cfg.seed, varied)
+    name = run_name(method, named_n, cfg.seed, varied)
     return Run(point, setup, method, n_train, seed, cfg, f"runs/{setup}/{name}")
 
 
