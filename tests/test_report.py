@@ -557,3 +557,30 @@ def test_a_hostile_folder_is_refused_in_one_line_naming_what_is_wrong(tmp_path, 
     assert err.startswith("procam: error: ") and message in err, err
     assert len(err.strip().splitlines()) == 1 and "root:" not in err
     assert not (folder / "report.html").exists()
+
+
+def test_a_factor_spanning_decades_from_zero_is_drawn_on_a_symlog_axis(tmp_path, monkeypatch):
+    """A smoothing λ of 0, 1e-4, 1e-2 and 1: 0 at the left, the positive values a decade pair apart
+    each (a linear axis would squeeze 0 … 1e-2 into one spot), every value a tick."""
+    from compensation.reports import charts
+
+    values = [0.0, 1e-4, 1e-2, 1.0]
+    summary = [{"point": p, "smoothing": v, "method": "tps", "n_train": 125, "runs": 1,
+                "psnr_mean": 25.0 + p, "psnr_std": 0.0, "unc_psnr_mean": 12.0}
+               for p, v in enumerate(values)]
+    drawn = []
+
+    def keep(plt, fig, stem):
+        drawn.append([(ax.get_xscale(), list(ax.get_xticks()),
+                       ax.transData.transform([(v, 0.0) for v in values])[:, 0]) for ax in fig.axes])
+        plt.close(fig)
+        return []
+
+    monkeypatch.setattr(charts, "_saved", keep)
+    charts.draw_study(summary, [], [], {"key": "smoothing", "values": values, "label": "λ"},
+                      tmp_path / "study", "smoothing")
+    (scale, ticks, x), = drawn[0]
+    assert scale == "symlog" and ticks == pytest.approx(values)
+    steps = np.diff(x)
+    assert steps[1] == pytest.approx(steps[2], rel=1e-6) and np.all(steps > 0)
+    assert min(steps) > 0.2 * max(steps)  # 0 … 1e-4 gets room of its own

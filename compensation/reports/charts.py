@@ -48,7 +48,9 @@ LEGEND_COLUMNS = 4
 BOUNDS = {"oracle_": (":", "feedback oracle"), "optimum_": ("-", "exact optimum (physical bound)")}
 """Line style and label of each method-free row of :data:`SCOPES`."""
 LOG_SPAN = 20
-"""A positive numeric factor spanning this ratio or more is drawn on a log axis (e.g. 8 … 500 pairs)."""
+"""A numeric factor whose positive values span this ratio or more is drawn on a log axis (e.g. 8 …
+500 pairs), with a linear stretch down to 0 where 0 is one of its values (a smoothing λ of 0, 1e-4
+… 1); see :func:`x_scale`."""
 FAILURE_COLOUR = "#d62728"
 DPI = 110
 
@@ -70,6 +72,26 @@ def axis_positions(values: list, listed: list) -> tuple[dict, bool]:
     ordered = sorted(set(values), key=lambda v: order_key(v, listed))
     numeric = all(is_finite(v) for v in ordered)
     return ({v: (float(v) if numeric else i) for i, v in enumerate(ordered)}, numeric)
+
+
+def x_scale(positions: list[float]) -> tuple[str, float | None]:
+    """How to draw a numeric factor's axis: ``"linear"``, ``"log"`` where its values are positive
+    and span :data:`LOG_SPAN` or more, or ``"symlog"`` where they also include 0 (linear from 0 to
+    the smallest positive value, returned as the threshold, logarithmic above it).
+
+    >>> x_scale([0.0, 0.01, 0.02, 0.08])
+    ('linear', None)
+    >>> x_scale([8.0, 32.0, 500.0])
+    ('log', None)
+    >>> x_scale([0.0, 1e-4, 1e-2, 1.0])
+    ('symlog', 0.0001)
+    >>> x_scale([-1.0, 1.0, 100.0])
+    ('linear', None)
+    """
+    positive = [v for v in positions if v > 0]
+    if min(positions) < 0 or len(positive) < 2 or max(positive) < LOG_SPAN * min(positive):
+        return "linear", None
+    return ("log", None) if len(positive) == len(positions) else ("symlog", min(positive))
 
 
 def study_lines(summary: list[dict], key: str, listed: list, score: str) -> dict[tuple, dict]:
@@ -337,7 +359,7 @@ def _x_axis(axis: dict, summary: list[dict]) -> tuple[dict, bool, bool, str]:
     (with the physical quantity of its ticks' second line, where the axis records one)."""
     key = axis["key"]
     pos, numeric = axis_positions([r[key] for r in summary], axis["values"])
-    log_x = numeric and min(pos.values()) > 0 and max(pos.values()) >= LOG_SPAN * min(pos.values())
+    log_x = numeric and x_scale(list(pos.values()))[0] != "linear"
     label = (axis.get("label") or key) + (f" ({axis['unit']})" if axis.get("unit") else "")
     if physical := axis.get("physical"):
         label += f"; below it: {physical['label']} ({physical['unit']})"
@@ -370,12 +392,13 @@ def tick_labels(axis: dict, pos: dict) -> list[str]:
 
 
 def _format_x(ax, pos: dict, numeric: bool, log_x: bool, xlabel: str, axis: dict) -> None:
-    """Ticks at the factor's values (categorical, or a log axis; :func:`tick_labels`), its label
-    and a grid."""
+    """Ticks at the factor's values (categorical, or a log axis as :func:`x_scale` draws it;
+    :func:`tick_labels`), its label and a grid."""
     from matplotlib.ticker import NullFormatter
 
     if log_x:
-        ax.set_xscale("log")
+        scale, threshold = x_scale(list(pos.values()))
+        ax.set_xscale(scale, **({"linthresh": threshold} if threshold else {}))
         ax.xaxis.set_minor_formatter(NullFormatter())
     if log_x or not numeric or axis.get("physical"):
         ax.set_xticks(sorted(pos.values()), tick_labels(axis, pos))
