@@ -84,6 +84,19 @@ def test_shipped_studies_load_and_expand(path):
     assert len({r.run for r in plan.runs}) <= len(plan.runs)
 
 
+MEASURED = sorted((ROOT / "benchmarks" / "studies").glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", MEASURED, ids=[p.stem for p in MEASURED])
+def test_the_benchmark_copies_of_studies_load_and_reach_their_camera(path):
+    """The shipped studies as measured on 2 cores (benchmarks/studies/: a 120x80 camera) load,
+    expand to one setup per value, and every setup has the 120x80 camera."""
+    study = load_study(path)
+    plan = expand(study)
+    assert study.name == path.stem and len(plan.setups) == len(study.axes[0].values)
+    assert {tuple(_setup_value(s, "camera", "resolution")) for s in plan.setups.values()} == {(120, 80)}
+
+
 def test_overrides_and_only():
     study = load_study(ROOT / "scenes" / "studies" / "train-size.toml")
     small = with_overrides(study, size=(32, 32), n_train=(8, 16), n_test=4, iters=5, seeds=1,
