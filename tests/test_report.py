@@ -560,8 +560,8 @@ def test_a_hostile_folder_is_refused_in_one_line_naming_what_is_wrong(tmp_path, 
 
 
 def test_a_factor_spanning_decades_from_zero_is_drawn_on_a_symlog_axis(tmp_path, monkeypatch):
-    """A smoothing λ of 0, 1e-4, 1e-2 and 1: 0 at the left, the positive values a decade pair apart
-    each (a linear axis would squeeze 0 … 1e-2 into one spot), every value a tick."""
+    """A smoothing λ of 0, 1e-4, 1e-2 and 1: 0 at the left, the positive values equally spaced (two
+    decades each; a linear axis would squeeze 0 … 1e-2 into one spot), every value a tick."""
     from compensation.reports import charts
 
     values = [0.0, 1e-4, 1e-2, 1.0]
