@@ -454,7 +454,9 @@ def test_each_value_of_a_second_axis_keeps_its_own_chart_files(tmp_path):
     summary = summarize(two, [AXIS, "camera.read_noise"])
     written = write_charts(tmp_path / "two", study2, summary, breakpoints(summary, study2), [])
     names = sorted(p.name for p in written)
-    assert {"study_camera.read_noise=0.png", "study_camera.read_noise=0.01.png"} <= set(names)
+    assert {"study_camera.read_noise=0.png", "study_camera.read_noise=0.01.png",
+            "speed_camera.read_noise=0.png", "speed_camera.read_noise=0.01.png"} <= set(names)
+    assert "speed.png" not in names  # no chart averages over the second axis
     assert len(set(names)) == len(names) and all(p.is_file() for p in written)
     assert all(p.with_name(p.name[:-3] + "svg").is_file() for p in written)
 
@@ -584,3 +586,27 @@ def test_a_factor_spanning_decades_from_zero_is_drawn_on_a_symlog_axis(tmp_path,
     steps = np.diff(x)
     assert steps[1] == pytest.approx(steps[2], rel=1e-6) and np.all(steps > 0)
     assert min(steps) > 0.2 * max(steps)  # 0 … 1e-4 gets room of its own
+
+
+def test_the_speed_chart_has_a_column_per_factor_value(study, monkeypatch):
+    """Fit time against PSNR per value of the factor (a method's cost and score differ along it),
+    each point with its ± std bars, none averaged over the values."""
+    from compensation.reports import charts
+
+    folder, rows = load_folder(study)
+    summary = summarize(rows, [AXIS])
+    points = speed_points(summary, AXIS)
+    assert {(p["method"], p["value"]) for p in points} == {(m, v) for m in ("tps", "nayar", "compennet")
+                                                           for v in VALUES}
+    for p in points:
+        row = next(r for r in summary if (r["method"], r[AXIS]) == (p["method"], p["value"]))
+        assert (p["fit_s"], p["psnr"], p["psnr_std"]) == (row["fit_s_mean"], row["cl_psnr_mean"], row["cl_psnr_std"])
+    drawn = []
+    monkeypatch.setattr(charts, "_saved", lambda plt, fig, stem: drawn.append(
+        [(ax.get_title(), len(ax.containers)) for ax in fig.axes]) or plt.close(fig) or [])
+    charts.draw_speed(points, Path("speed"), "speed", folder["axes"][0])
+    panels = drawn[0]
+    assert len(panels) == 2 * len(VALUES)
+    name = folder["axes"][0].get("label") or AXIS
+    assert [t for t, _ in panels if t] == [f"{name} = {v:g}" for v in VALUES]
+    assert all(bars == 3 for title, bars in panels if title)  # one error bar per method

@@ -17,7 +17,10 @@ their own; the ``draw_*`` functions only draw it. Files go to ``DIR/charts/`` as
                                share of the targets' pixels the setup can show (reachable fraction)
 ``gain_<key>=<value>.png``     two axes: the same per value of the second axis
 ``speed.png``                  fit time and inference ms per frame (log x) against PSNR (closed loop
-                               where scored), every method and training size, the Pareto front
+                               where scored), every method and training size with its ± std bars,
+                               the Pareto front; in a study one column of panels per value of the
+                               factor (a method's cost and score differ along it)
+``speed_<key>=<value>.png``    two axes: the same per value of the second axis
 ``heatmap_<score>_<method>.png``  two axes: PSNR (``psnr``; ``cl_psnr`` where scored) per cell of the
                                grid of the two factors (x: the first, y: the second), the mean over
                                the cell's runs printed in it (± the std over several), one chart per
@@ -175,31 +178,40 @@ def bound_gain(summary: list[dict], key: str, listed: list, prefix: str) -> tupl
     return [x for x, _ in kept], [y for _, y in kept]
 
 
-def speed_points(summary: list[dict]) -> list[dict]:
-    """Speed and accuracy of every (method, n_train), averaged over the folder's points: ``fit_s``,
-    ``infer_ms`` (per frame), ``psnr`` and ``score`` (``closed loop`` where scored, else
-    ``surrogate``, as :func:`~compensation.reports.summary.closed_loop_gain`).
+def speed_points(summary: list[dict], key: str | None = None) -> list[dict]:
+    """Speed and accuracy of every (method, n_train), averaged over the folder's points, or per value
+    of the factor ``key`` (then each point has its ``value``): ``fit_s``, ``infer_ms`` (per frame),
+    ``psnr`` and ``score`` (``closed loop`` where scored, else ``surrogate``, as
+    :func:`~compensation.reports.summary.closed_loop_gain`), with ``fit_s_std`` and ``psnr_std``
+    (over seeds and setups: the mean of the points' stds).
 
-    >>> s = [{"method": "tps", "n_train": 8, "fit_s_mean": f, "infer_ms_mean": 2.0,
-    ...       "cl_psnr_mean": p, "cl_unc_psnr_mean": 10.0} for f, p in ((1.0, 20.0), (3.0, 22.0))]
-    >>> speed_points(s)
-    [{'method': 'tps', 'n_train': 8, 'fit_s': 2.0, 'infer_ms': 2.0, 'psnr': 21.0, 'score': 'closed loop'}]
+    >>> s = [{"f": f, "method": "tps", "n_train": 8, "fit_s_mean": f, "infer_ms_mean": 2.0,
+    ...       "cl_psnr_mean": p, "cl_psnr_std": 0.5, "cl_unc_psnr_mean": 10.0}
+    ...      for f, p in ((1.0, 20.0), (3.0, 22.0))]
+    >>> [(p["fit_s"], p["psnr"], p["score"]) for p in speed_points(s)]
+    [(2.0, 21.0, 'closed loop')]
+    >>> [(p["value"], p["fit_s"], p["psnr"], p["psnr_std"]) for p in speed_points(s, "f")]
+    [(1.0, 1.0, 20.0, 0.5), (3.0, 3.0, 22.0, 0.5)]
     """
     groups: dict[tuple, list[dict]] = {}
     for r in summary:
-        groups.setdefault((r["method"], r["n_train"]), []).append(r)
+        groups.setdefault((r["method"], r["n_train"], *((cell_identity(r[key]),) if key else ())), []).append(r)
+
+    def mean(vals):
+        vals = [v for v in vals if is_finite(v)]
+        return float(np.mean(vals)) if vals else math.nan
+
     out = []
-    for (method, n_train), rs in groups.items():
+    for group, rs in groups.items():
         scored = [closed_loop_gain(r) for r in rs]
-
-        def mean(vals):
-            vals = [v for v in vals if is_finite(v)]
-            return float(np.mean(vals)) if vals else math.nan
-
-        out.append({"method": method, "n_train": n_train,
+        prefix = "cl_" if scored[0][2] == "closed loop" else ""
+        out.append({"method": group[0], "n_train": group[1], **({"value": rs[0][key]} if key else {}),
                     "fit_s": mean(r.get("fit_s_mean", math.nan) for r in rs),
+                    "fit_s_std": mean(r.get("fit_s_std", math.nan) for r in rs),
                     "infer_ms": mean(r.get("infer_ms_mean", math.nan) for r in rs),
-                    "psnr": mean(s[0] for s in scored), "score": scored[0][2]})
+                    "psnr": mean(s[0] for s in scored),
+                    "psnr_std": mean(r.get(f"{prefix}psnr_std", math.nan) for r in rs),
+                    "score": scored[0][2]})
     return out
 
 
@@ -486,44 +498,61 @@ def _draw_failures(ax, fails: list[dict], key: str, pos: dict, score: str) -> No
         marked = True
 
 
-def draw_speed(points: list[dict], stem: Path, title: str) -> list[Path]:
+def draw_speed(points: list[dict], stem: Path, title: str, axis: dict | None = None) -> list[Path]:
     """Draw fit time and inference ms per frame (log x) against PSNR for every (method, n_train) of
-    :func:`speed_points`, each panel with its Pareto front, to ``stem.png`` and ``stem.svg``."""
+    :func:`speed_points`, ± std bars, each panel with its Pareto front, to ``stem.png`` and
+    ``stem.svg``: one column of the two panels per value of ``axis`` (the study's factor) where the
+    points carry one, else one column."""
     plt = pyplot()
     from matplotlib.ticker import NullFormatter
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    values = [None]
+    if axis is not None:
+        values = sorted({cell_identity(p["value"]): p["value"] for p in points}.values(),
+                        key=lambda v: order_key(v, axis["values"]))
+    fig, axes = plt.subplots(2, len(values), figsize=(max(5.0, 3.6 * len(values)), 7.6), squeeze=False)
     colours = _colours(list({p["method"] for p in points}))
     score = points[0]["score"] if points else "closed loop"
-    for ax, cost, xlabel in ((axes[0], "fit_s", "fit time (s, log)"),
-                             (axes[1], "infer_ms", "inference (ms per frame, log)")):
-        usable = [p for p in points if is_finite(p[cost]) and p[cost] > 0 and is_finite(p["psnr"])]
-        for p in usable:
-            ax.plot(p[cost], p["psnr"], "o", color=colours[p["method"]], ms=7, label=p["method"])
-            ax.annotate(f"{p['method']} n={p['n_train']}", (p[cost], p["psnr"]), fontsize=7,
-                        xytext=(4, 4), textcoords="offset points")
-        front = [usable[i] for i in pareto_front([(p[cost], p["psnr"]) for p in usable])]
-        if front:
-            xs = [p[cost] for p in front]
-            ys = [p["psnr"] for p in front]
-            ax.step(xs, ys, where="post", color="black", lw=1.2, alpha=0.7, label="Pareto front")
-            ax.plot(xs, ys, "o", ms=12, mfc="none", mec="black", mew=1.2)
-        if usable:
-            ax.set_xscale("log")
-            lo, hi = min(p[cost] for p in usable), max(p[cost] for p in usable)
-            ax.set_xlim(10 ** math.floor(math.log10(lo / 2)), 10 ** math.ceil(math.log10(hi * 2)))
+    for col, value in enumerate(values):
+        mine = [p for p in points if value is None or cell_identity(p["value"]) == cell_identity(value)]
+        for ax, cost, xlabel in ((axes[0][col], "fit_s", "fit time (s, log)"),
+                                 (axes[1][col], "infer_ms", "inference (ms per frame, log)")):
+            if value is not None and cost == "fit_s":
+                name = axis.get("label") or axis["key"]
+                ax.set_title(f"{name} = {_tick(value)}", fontsize=9)
+            _speed_panel(ax, [p for p in mine if is_finite(p[cost]) and p[cost] > 0 and is_finite(p["psnr"])],
+                         cost, colours)
+            ax.set_xlabel(xlabel, fontsize=9)
+            ax.set_ylabel(f"{score} PSNR (dB)", fontsize=9)
+            ax.grid(alpha=0.3, which="both")
             ax.xaxis.set_minor_formatter(NullFormatter())
-        else:
-            ax.text(0.5, 0.5, f"no {cost} recorded", ha="center", transform=ax.transAxes)
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel(f"{score} PSNR (dB)")
-        ax.grid(alpha=0.3, which="both")
-        handles = dict(zip(*reversed(ax.get_legend_handles_labels())))
-        if handles:
-            ax.legend(list(handles.values()), list(handles), fontsize=7)
     fig.suptitle(title, fontsize=11)
     fig.tight_layout()
     return _saved(plt, fig, stem)
+
+
+def _speed_panel(ax, usable: list[dict], cost: str, colours: dict) -> None:
+    """One panel of :func:`draw_speed`: the points with their ± std bars (the cost's bar kept above
+    0 on the log axis), labelled, and their Pareto front ringed."""
+    if not usable:
+        ax.text(0.5, 0.5, f"no {cost} recorded", ha="center", transform=ax.transAxes)
+        return
+    for p in usable:
+        spread = p.get(f"{cost}_std", math.nan)
+        spread = min(spread, 0.9 * p[cost]) if is_finite(spread) else 0.0
+        ax.errorbar(p[cost], p["psnr"], xerr=spread, yerr=np.nan_to_num(p.get("psnr_std", math.nan)),
+                    fmt="o", color=colours[p["method"]], ms=7, capsize=3, label=p["method"])
+        ax.annotate(f"{p['method']} n={p['n_train']}", (p[cost], p["psnr"]), fontsize=7,
+                    xytext=(4, 4), textcoords="offset points")
+    front = [usable[i] for i in pareto_front([(p[cost], p["psnr"]) for p in usable])]
+    xs, ys = [p[cost] for p in front], [p["psnr"] for p in front]
+    ax.step(xs, ys, where="post", color="black", lw=1.2, alpha=0.7, label="Pareto front")
+    ax.plot(xs, ys, "o", ms=12, mfc="none", mec="black", mew=1.2)
+    ax.set_xscale("log")
+    lo, hi = min(p[cost] for p in usable), max(p[cost] for p in usable)
+    ax.set_xlim(10 ** math.floor(math.log10(lo / 2)), 10 ** math.ceil(math.log10(hi * 2)))
+    handles = dict(zip(*reversed(ax.get_legend_handles_labels())))
+    ax.legend(list(handles.values()), list(handles), fontsize=7)
 
 
 def _tick(value) -> str:
@@ -636,9 +665,10 @@ def write_charts(folder: Path, study: dict, summary: list[dict], breaks: list[di
             if any(is_finite(r.get("gain_db", math.nan)) for r in group):
                 out.append(draw_gain(group, [b for b in breaks if match(b)], first,
                                      charts / _slug("gain" + stem[len("study"):]), heading)[0])
+            out.append(draw_speed(speed_points(group, first["key"]), charts / _slug("speed" + stem[len("study"):]),
+                                  f"{heading}: speed against accuracy", first)[0])
     if len(axes) == 2 and summary:
         out += write_heatmaps(charts, name, axes, summary)
-    points = speed_points(summary)
-    if points:
+    if not axes and (points := speed_points(summary)):
         out.append(draw_speed(points, charts / "speed", f"{name}: speed against accuracy")[0])
     return out
