@@ -658,15 +658,15 @@ def write_charts(folder: Path, study: dict, summary: list[dict], breaks: list[di
             stem = "study" + "".join(f"_{k}={v:g}" if is_finite(v) else f"_{k}={v}" for k, v in zip(second, values))
             match = lambda r: all(r.get(k) == v for k, v in zip(second, values))  # noqa: E731
             heading = f"{name}" + (f" ({where})" if where else "")
-            if not _scored(group):  # every run of these points failed: nothing to draw
+            out.append(draw_speed(speed_points(group, first["key"]), charts / _slug("speed" + stem[len("study"):]),
+                                  f"{heading}: speed against accuracy", first)[0])
+            if not _scored(group):  # every run of these points failed: no scores to draw
                 continue
             out.append(draw_study(group, [b for b in breaks if match(b)], [f for f in fails if match(f)],
                                   first, charts / _slug(stem), heading)[0])
             if any(is_finite(r.get("gain_db", math.nan)) for r in group):
                 out.append(draw_gain(group, [b for b in breaks if match(b)], first,
                                      charts / _slug("gain" + stem[len("study"):]), heading)[0])
-            out.append(draw_speed(speed_points(group, first["key"]), charts / _slug("speed" + stem[len("study"):]),
-                                  f"{heading}: speed against accuracy", first)[0])
     if len(axes) == 2 and summary:
         out += write_heatmaps(charts, name, axes, summary)
     if not axes and (points := speed_points(summary)):
