@@ -324,7 +324,7 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
     """
     plt = pyplot()
     key, listed = axis["key"], axis["values"]
-    pos, numeric, log_x, xlabel = _x_axis(axis, summary)
+    pos, numeric, scale, xlabel = _x_axis(axis, summary)
     metrics = [(m, label) for m, label in PANELS
                if any(is_finite(r.get(f"{p}{m}_mean", math.nan)) for r in summary for p, *_ in SCOPES)]
     scopes = [s for s in SCOPES if any(is_finite(r.get(f"{s[0]}psnr_mean", math.nan)) for r in summary)] or [SCOPES[0]]
@@ -362,20 +362,21 @@ def draw_study(summary: list[dict], breaks: list[dict], fails: list[dict], axis:
                             color=colours[b["method"]], ls="none", zorder=5,
                             label=f"break: {b['method']}" + (f", n={b['n_train']}" if len(sizes) > 1 else ""))
             _draw_failures(ax, fails, key, pos, score)
-            _format_x(ax, pos, numeric, log_x, xlabel, axis)
+            _format_x(ax, pos, numeric, scale, xlabel, axis)
     return _finish(plt, fig, axes, stem, title)
 
 
-def _x_axis(axis: dict, summary: list[dict]) -> tuple[dict, bool, bool, str]:
-    """Positions of the factor's values, whether numeric, whether on a log axis, and its label
-    (with the physical quantity of its ticks' second line, where the axis records one)."""
+def _x_axis(axis: dict, summary: list[dict]) -> tuple[dict, bool, tuple[str, float | None], str]:
+    """Positions of the factor's values, whether numeric, its scale (:func:`x_scale`; linear where
+    categorical), and its label (with the physical quantity of its ticks' second line, where the
+    axis records one)."""
     key = axis["key"]
     pos, numeric = axis_positions([r[key] for r in summary], axis["values"])
-    log_x = numeric and x_scale(list(pos.values()))[0] != "linear"
+    scale = x_scale(list(pos.values())) if numeric else ("linear", None)
     label = (axis.get("label") or key) + (f" ({axis['unit']})" if axis.get("unit") else "")
     if physical := axis.get("physical"):
         label += f"; below it: {physical['label']} ({physical['unit']})"
-    return pos, numeric, log_x, label
+    return pos, numeric, scale, label
 
 
 def tick_labels(axis: dict, pos: dict) -> list[str]:
@@ -403,16 +404,17 @@ def tick_labels(axis: dict, pos: dict) -> list[str]:
     return labels
 
 
-def _format_x(ax, pos: dict, numeric: bool, log_x: bool, xlabel: str, axis: dict) -> None:
+def _format_x(ax, pos: dict, numeric: bool, scale: tuple[str, float | None], xlabel: str,
+              axis: dict) -> None:
     """Ticks at the factor's values (categorical, or a log axis as :func:`x_scale` draws it;
     :func:`tick_labels`), its label and a grid."""
     from matplotlib.ticker import NullFormatter
 
-    if log_x:
-        scale, threshold = x_scale(list(pos.values()))
-        ax.set_xscale(scale, **({"linthresh": threshold} if threshold else {}))
+    kind, threshold = scale
+    if kind != "linear":
+        ax.set_xscale(kind, **({"linthresh": threshold} if threshold else {}))
         ax.xaxis.set_minor_formatter(NullFormatter())
-    if log_x or not numeric or axis.get("physical"):
+    if kind != "linear" or not numeric or axis.get("physical"):
         ax.set_xticks(sorted(pos.values()), tick_labels(axis, pos))
     ax.set_xlabel(xlabel, fontsize=9)
     ax.grid(alpha=0.3)
@@ -446,7 +448,7 @@ def draw_gain(summary: list[dict], breaks: list[dict], axis: dict, stem: Path, t
     """
     plt = pyplot()
     key, listed = axis["key"], axis["values"]
-    pos, numeric, log_x, xlabel = _x_axis(axis, summary)
+    pos, numeric, scale, xlabel = _x_axis(axis, summary)
     fig, axes = plt.subplots(2, 1, figsize=(7.5, 7.0), squeeze=False, sharex=True,
                              gridspec_kw={"height_ratios": (3, 1.3)})
     ax, reach = axes[0][0], axes[1][0]
@@ -476,7 +478,7 @@ def draw_gain(summary: list[dict], breaks: list[dict], axis: dict, stem: Path, t
         reach.text(0.5, 0.5, "not recorded", ha="center", va="center", transform=reach.transAxes)
     reach.set_ylim(0, 1.02)
     reach.set_ylabel("reachable fraction")
-    _format_x(reach, pos, numeric, log_x, xlabel, axis)
+    _format_x(reach, pos, numeric, scale, xlabel, axis)
     return _finish(plt, fig, axes, stem, title)
 
 
