@@ -10,16 +10,6 @@ from sim.variant import FALLBACK, choose_variant
 
 VARIANTS = sorted({choose_variant(), FALLBACK})
 
-LONGEST_MODULES = ("test_demo.py", "test_nonsquare.py", "test_faults_render.py",
-                   "test_faults_compensation.py", "test_signature_bench.py", "test_executors.py",
-                   "test_train_resume.py", "test_studies.py", "test_bench.py", "test_train_bench.py",
-                   "test_optimum.py", "test_progress.py", "test_methods_contract.py", "test_report.py")
-"""The test modules that take half a minute or more, longest first (measured under ``make test`` on
-2 cores: 117 s and 103 s for the first two, 29 s for the last): they are collected first, in this
-order, so that pytest-xdist (whole files per worker, the next file to the first worker free) ends
-on short modules instead of one core idling while the other finishes a long one."""
-
-
 def pytest_configure(config):
     """Under pytest-xdist (``make test`` runs one worker per core) each worker computes with one
     torch thread: the CompenNet-heavy non-square module's fixture took 194 s beside the other worker
@@ -90,8 +80,7 @@ def _flush_jit():
 
 
 def pytest_collection_modifyitems(items):
-    """Put :data:`LONGEST_MODULES` first, and run the doctests of ``sim/`` and ``compensation/`` under
-    numpy's default print options.
+    """Run the doctests of ``sim/`` and ``compensation/`` under numpy's default print options.
 
     colour-science calls ``np.set_printoptions(legacy="1.13")`` when it is imported (by the first
     capture's response curve, :mod:`sim.camera.response`, or a colour temperature or ΔE), which
@@ -102,8 +91,6 @@ def pytest_collection_modifyitems(items):
     import numpy as np
     from _pytest.doctest import DoctestItem
 
-    rank = {name: i for i, name in enumerate(LONGEST_MODULES)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
     for item in items:
         if isinstance(item, DoctestItem):
             def runtest(run=item.runtest):
