@@ -589,8 +589,9 @@ def test_a_factor_spanning_decades_from_zero_is_drawn_on_a_symlog_axis(tmp_path,
 
 
 def test_the_speed_chart_has_a_column_per_factor_value(study, monkeypatch):
-    """Fit time against PSNR per value of the factor (a method's cost and score differ along it),
-    each point with its ± std bars, none averaged over the values."""
+    """Fit time, inference time and the captures the fit needs against PSNR per value of the
+    factor (a method's cost and score differ along it), each point with its ± std bars, none
+    averaged over the values."""
     from compensation.reports import charts
 
     folder, rows = load_folder(study)
@@ -601,12 +602,17 @@ def test_the_speed_chart_has_a_column_per_factor_value(study, monkeypatch):
     for p in points:
         row = next(r for r in summary if (r["method"], r[AXIS]) == (p["method"], p["value"]))
         assert (p["fit_s"], p["psnr"], p["psnr_std"]) == (row["fit_s_mean"], row["cl_psnr_mean"], row["cl_psnr_std"])
+        # TPS and Nayar fit the 125 plain colours; CompenNet its training pairs and the surface image
+        assert p["captures"] == {"tps": 125, "nayar": 125}.get(p["method"], int(row["n_train"]) + 1)
     drawn = []
     monkeypatch.setattr(charts, "_saved", lambda plt, fig, stem: drawn.append(
-        [(ax.get_title(), len(ax.containers)) for ax in fig.axes]) or plt.close(fig) or [])
+        [(ax.get_title(), ax.get_xlabel(), sorted(c.lines[0].get_xdata()[0] for c in ax.containers))
+         for ax in fig.axes]) or plt.close(fig) or [])
     charts.draw_speed(points, Path("speed"), "speed", folder["axes"][0])
     panels = drawn[0]
-    assert len(panels) == 2 * len(VALUES)
+    assert len(panels) == 3 * len(VALUES)
     name = folder["axes"][0].get("label") or AXIS
-    assert [t for t, _ in panels if t] == [f"{name} = {v:g}" for v in VALUES]
-    assert all(bars == 3 for title, bars in panels if title)  # one error bar per method
+    assert [t for t, _, _ in panels if t] == [f"{name} = {v:g}" for v in VALUES]
+    assert all(len(xs) == 3 for _, _, xs in panels)  # one error bar per method in every panel
+    captures = [xs for _, label, xs in panels if label.startswith("captures")]
+    assert captures == [sorted(p["captures"] for p in points if p["value"] == v) for v in VALUES]

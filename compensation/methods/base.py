@@ -231,6 +231,21 @@ class Method(abc.ABC):
     plain_colours: ClassVar[bool] = False
     """The method fits the 125 plain-colour pairs of ``ref`` whatever the number of training pairs
     (TPS, Nayar); its official tag then names 125."""
+    surface: ClassVar[bool] = False
+    """The method takes the surface image s̃ (the capture of the plain gray frame) as an input."""
+
+    @classmethod
+    def fit_captures(cls, n_train: int) -> int:
+        """Captures a fit with ``n_train`` training pairs needs: the 125 plain colours
+        (:attr:`plain_colours`) or the ``n_train`` training captures, plus the surface image where
+        the method takes it (:attr:`surface`). The registration's checkerboards, which every method
+        needs alike, are not counted.
+
+        >>> from compensation.methods import get_method
+        >>> [get_method(m).fit_captures(500) for m in ("tps", "tps-textured", "compennet")]
+        [125, 500, 501]
+        """
+        return (N_PLAIN if cls.plain_colours else int(n_train)) + int(cls.surface)
 
     @classmethod
     def seeded(cls, cfg: TrainConfig) -> bool:

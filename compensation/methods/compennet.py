@@ -404,8 +404,8 @@ class CompenNetMethod(Method):
     name = "compennet"
     official_name = "CompenNet"
     options = CompenNetOptions
-    surface: ClassVar[bool] = True
-    """Whether the network has the surface branch."""
+    surface = True
+    """The network has the surface branch (fed s̃)."""
 
     def __init__(self, device: str = "auto"):
         self.device = resolve_device(device)

@@ -16,10 +16,11 @@ their own; the ``draw_*`` functions only draw it. Files go to ``DIR/charts/`` as
                                1 dB line, the oracle's and the optimum's gains, break points (star); below, the
                                share of the targets' pixels the setup can show (reachable fraction)
 ``gain_<key>=<value>.png``     two axes: the same per value of the second axis
-``speed.png``                  fit time and inference ms per frame (log x) against PSNR (closed loop
-                               where scored), every method and training size with its ± std bars,
-                               the Pareto front; in a study one column of panels per value of the
-                               factor (a method's cost and score differ along it)
+``speed.png``                  fit time, inference ms per frame and the captures the fit needs (log
+                               x) against PSNR (closed loop where scored), every method and training
+                               size with its ± std bars, the Pareto front; in a study one column of
+                               panels per value of the factor (a method's cost and score differ
+                               along it)
 ``speed_<key>=<value>.png``    two axes: the same per value of the second axis
 ``heatmap_<score>_<method>.png``  two axes: PSNR (``psnr``; ``cl_psnr`` where scored) per cell of the
                                grid of the two factors (x: the first, y: the second), the mean over
@@ -37,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from compensation.experiments.jobs import cell_identity
+from compensation.methods import METHODS
 from compensation.reports.summary import (BREAK_GAIN_DB, CONFIDENCE, is_finite, order_key, closed_loop_gain,
                                           n_train_follows)
 from sim.io import atomic_write
@@ -181,15 +183,16 @@ def bound_gain(summary: list[dict], key: str, listed: list, prefix: str) -> tupl
 def speed_points(summary: list[dict], key: str | None = None) -> list[dict]:
     """Speed and accuracy of every (method, n_train), averaged over the folder's points, or per value
     of the factor ``key`` (then each point has its ``value``): ``fit_s``, ``infer_ms`` (per frame),
-    ``psnr`` and ``score`` (``closed loop`` where scored, else ``surrogate``, as
-    :func:`~compensation.reports.summary.closed_loop_gain`), with ``fit_s_std`` and ``psnr_std``
-    (over seeds and setups: the mean of the points' stds).
+    ``captures`` (that the fit needs, :meth:`~compensation.methods.base.Method.fit_captures`; NaN
+    for a method this version does not know), ``psnr`` and ``score`` (``closed loop`` where scored,
+    else ``surrogate``, as :func:`~compensation.reports.summary.closed_loop_gain`), with
+    ``fit_s_std`` and ``psnr_std`` (over seeds and setups: the mean of the points' stds).
 
     >>> s = [{"f": f, "method": "tps", "n_train": 8, "fit_s_mean": f, "infer_ms_mean": 2.0,
     ...       "cl_psnr_mean": p, "cl_psnr_std": 0.5, "cl_unc_psnr_mean": 10.0}
     ...      for f, p in ((1.0, 20.0), (3.0, 22.0))]
-    >>> [(p["fit_s"], p["psnr"], p["score"]) for p in speed_points(s)]
-    [(2.0, 21.0, 'closed loop')]
+    >>> [(p["fit_s"], p["captures"], p["psnr"], p["score"]) for p in speed_points(s)]
+    [(2.0, 125, 21.0, 'closed loop')]
     >>> [(p["value"], p["fit_s"], p["psnr"], p["psnr_std"]) for p in speed_points(s, "f")]
     [(1.0, 1.0, 20.0, 0.5), (3.0, 3.0, 22.0, 0.5)]
     """
@@ -209,10 +212,24 @@ def speed_points(summary: list[dict], key: str | None = None) -> list[dict]:
                     "fit_s": mean(r.get("fit_s_mean", math.nan) for r in rs),
                     "fit_s_std": mean(r.get("fit_s_std", math.nan) for r in rs),
                     "infer_ms": mean(r.get("infer_ms_mean", math.nan) for r in rs),
+                    "captures": _fit_captures(group[0], group[1]),
                     "psnr": mean(s[0] for s in scored),
                     "psnr_std": mean(r.get(f"{prefix}psnr_std", math.nan) for r in rs),
                     "score": scored[0][2]})
     return out
+
+
+def _fit_captures(method: str, n_train) -> float:
+    """The captures a fit of ``method`` with ``n_train`` pairs needs; NaN for an unknown method or
+    a size that is not a number.
+
+    >>> _fit_captures("compennet", "125"), _fit_captures("magic", 8)
+    (126, nan)
+    """
+    try:
+        return METHODS[method].fit_captures(int(n_train))
+    except (KeyError, TypeError, ValueError):
+        return math.nan
 
 
 def pareto_front(points: list[tuple[float, float]]) -> list[int]:
@@ -500,11 +517,18 @@ def _draw_failures(ax, fails: list[dict], key: str, pos: dict, score: str) -> No
         marked = True
 
 
+SPEED_COSTS = {"fit_s": "fit time (s, log)", "infer_ms": "inference (ms per frame, log)",
+               "captures": "captures the fit needs (log)"}
+"""The costs :func:`draw_speed` draws PSNR against, one row of panels each, with their axis labels.
+The captures are those of the fit (plain colours or training pairs, and the surface image); the
+registration's checkerboards, the same for every method, are left out."""
+
+
 def draw_speed(points: list[dict], stem: Path, title: str, axis: dict | None = None) -> list[Path]:
-    """Draw fit time and inference ms per frame (log x) against PSNR for every (method, n_train) of
-    :func:`speed_points`, ± std bars, each panel with its Pareto front, to ``stem.png`` and
-    ``stem.svg``: one column of the two panels per value of ``axis`` (the study's factor) where the
-    points carry one, else one column."""
+    """Draw fit time, inference ms per frame and the captures the fit needs (log x) against PSNR for
+    every (method, n_train) of :func:`speed_points`, ± std bars, each panel with its Pareto front,
+    to ``stem.png`` and ``stem.svg``: one column of the three panels per value of ``axis`` (the
+    study's factor) where the points carry one, else one column."""
     plt = pyplot()
     from matplotlib.ticker import NullFormatter
 
@@ -512,14 +536,15 @@ def draw_speed(points: list[dict], stem: Path, title: str, axis: dict | None = N
     if axis is not None:
         values = sorted({cell_identity(p["value"]): p["value"] for p in points}.values(),
                         key=lambda v: order_key(v, axis["values"]))
-    fig, axes = plt.subplots(2, len(values), figsize=(max(5.0, 3.6 * len(values)), 7.6), squeeze=False)
+    fig, axes = plt.subplots(len(SPEED_COSTS), len(values), figsize=(max(5.0, 3.6 * len(values)), 11.0),
+                             squeeze=False)
     colours = _colours(list({p["method"] for p in points}))
     score = points[0]["score"] if points else "closed loop"
     for col, value in enumerate(values):
         mine = [p for p in points if value is None or cell_identity(p["value"]) == cell_identity(value)]
-        for ax, cost, xlabel in ((axes[0][col], "fit_s", "fit time (s, log)"),
-                                 (axes[1][col], "infer_ms", "inference (ms per frame, log)")):
-            if value is not None and cost == "fit_s":
+        for row, (cost, xlabel) in enumerate(SPEED_COSTS.items()):
+            ax = axes[row][col]
+            if value is not None and row == 0:
                 name = axis.get("label") or axis["key"]
                 ax.set_title(f"{name} = {_tick(value)}", fontsize=9)
             _speed_panel(ax, [p for p in mine if is_finite(p[cost]) and p[cost] > 0 and is_finite(p["psnr"])],
