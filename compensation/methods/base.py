@@ -241,9 +241,9 @@ class Method(abc.ABC):
         the method takes it (:attr:`surface`). The registration's checkerboards, which every method
         needs alike, are not counted.
 
-        >>> from compensation.methods import get_method
-        >>> [get_method(m).fit_captures(500) for m in ("tps", "tps-textured", "compennet")]
-        [125, 500, 501]
+        >>> from compensation.methods import METHODS
+        >>> {name: method.fit_captures(500) for name, method in sorted(METHODS.items())}
+        {'compennet': 501, 'compennet-nosurf': 500, 'nayar': 125, 'pix2pix': 500, 'tps': 125, 'tps-textured': 500}
         """
         return (N_PLAIN if cls.plain_colours else int(n_train)) + int(cls.surface)
 
