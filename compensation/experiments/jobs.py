@@ -53,6 +53,11 @@ UNDERTRAINED_TOLERANCE = 0.01
 """A run is undertrained where its mean training loss over the last :data:`UNDERTRAINED_WINDOW`
 of the logged iterations is below the mean over the window before by more than this share of it
 (:func:`still_falling`)."""
+RATE_TOLERANCE = 0.01
+""":func:`still_falling` judges a curve only where the learning rate over its two last windows
+stays within this share of its largest value there: under a falling rate (a one-cycle or cosine
+schedule annealing to its end, a step between the windows) the loss falls as the rate's noise
+fades, whether or not more iterations would lower it."""
 SCORES = ("psnr", "rmse", "ssim", "deltaE")
 """Scores of a run (:func:`~compensation.scores.metrics.evaluate`), in column order."""
 
@@ -72,7 +77,8 @@ RESULT_COLUMNS = (
     "ambient_share", "indirect_share")
 """Columns of ``results.csv`` after ``point`` and the axis columns (an axis on ``n_train`` is the
 ``n_train`` column itself); a bench adds ``table`` and ``variant``. ``undertrained`` is 1 where the
-run's training loss was still falling at its end (:func:`still_falling`), else 0. The ``optimum_``
+run's training loss was still falling at its end (:func:`still_falling`), 0 where it was not, empty
+where the learning rate fell over the windows compared (not judged). The ``optimum_``
 scores are those of the exact optimum's frames (:mod:`~compensation.experiments.optimum`) projected
 as a method's are. The ``cl_``, ``oracle_`` and ``optimum_`` scores compare with the target y' of
 ``target_policy`` (map y' = ``target_a`` · y + ``target_b``,
@@ -350,7 +356,7 @@ def baselines(job: BaselineJob) -> dict:
 
 def _loss_grew(run_dir: Path) -> bool:
     """Whether the run's logged training loss ended above :data:`DIVERGED_RATIO` times its start."""
-    losses = _losses(run_dir)
+    losses, _ = _curve(run_dir)
     return len(losses) > 1 and losses[-1] > DIVERGED_RATIO * losses[0]
 
 
@@ -360,11 +366,13 @@ the oracle's (its most corrections) and the exact optimum's, each against the sa
 ``results.csv``."""
 
 
-def still_falling(losses: Sequence[float], window: float = UNDERTRAINED_WINDOW,
-                  tolerance: float = UNDERTRAINED_TOLERANCE) -> bool:
+def still_falling(losses: Sequence[float], rates: Sequence[float] | None = None,
+                  window: float = UNDERTRAINED_WINDOW, tolerance: float = UNDERTRAINED_TOLERANCE) -> bool | None:
     """Whether a training loss curve was still falling at its end: the mean of its last ``window``
     share of values (at least one) is below the mean of the ``window`` before it by more than
-    ``tolerance`` times that mean. Curves of fewer than two values never are.
+    ``tolerance`` times that mean. Curves of fewer than two values never are. None (not judged)
+    where the learning rates logged beside the losses (``rates``) vary over the two windows by more
+    than :data:`RATE_TOLERANCE` of their largest value: an annealed rate lowers the loss by itself.
 
     >>> still_falling([1.0] * 10 + [0.9] * 10)
     False
@@ -372,21 +380,33 @@ def still_falling(losses: Sequence[float], window: float = UNDERTRAINED_WINDOW,
     True
     >>> still_falling([1.0, 0.5, 0.3] + [0.2] * 17)
     False
+    >>> still_falling([1.0 - 0.01 * i for i in range(20)], rates=[1e-3] * 20)
+    True
+    >>> print(still_falling([1.0 - 0.01 * i for i in range(20)], rates=[1e-3 * (20 - i) / 20 for i in range(20)]))
+    None
     """
     n = max(1, int(len(losses) * window))
     if len(losses) < 2 * n:
         return False
+    if rates is not None and len(rates) == len(losses):
+        compared = rates[-2 * n:]
+        if max(compared) - min(compared) > RATE_TOLERANCE * max(compared):
+            return None
     last, before = sum(losses[-n:]) / n, sum(losses[-2 * n:-n]) / n
     return last < before * (1 - tolerance)
 
 
-def _losses(run_dir: Path) -> list[float]:
-    """The run's logged training losses (``loss.csv``), empty where it has none or is unreadable."""
+def _curve(run_dir: Path) -> tuple[list[float], list[float] | None]:
+    """The run's logged training losses and learning rates (``loss.csv``; rates None where it logs
+    none), empty where it has no loss log or it is unreadable."""
     try:
         with open(run_dir / "loss.csv", newline="") as f:
-            return [float(r["loss"]) for r in csv.DictReader(f)]
-    except (OSError, KeyError, ValueError):
-        return []
+            rows = list(csv.DictReader(f))
+        losses = [float(r["loss"]) for r in rows]
+        rates = [float(r["lr"]) for r in rows] if rows and "lr" in rows[0] else None
+        return losses, rates
+    except (OSError, KeyError, ValueError, TypeError):
+        return [], None
 
 
 def run_status(metrics: dict, run_dir: Path) -> tuple[str, str]:
@@ -458,7 +478,8 @@ def result_row(fitted: dict, base: dict | None, out: Path) -> dict:
                    cl_psnr_reachable=cl.get("psnr_reachable"), **target_cells(cl))
         row.update({f"unc_{_column(k)}": metrics["uncompensated"][k] for k in SCORES})
         row["run"] = os.path.relpath(run_dir, out)
-        row["undertrained"] = int(still_falling(_losses(run_dir)))
+        falling = still_falling(*_curve(run_dir))
+        row["undertrained"] = "" if falling is None else int(falling)
         per_image.update(psnr=metrics.get("psnr_per_image"), cl_psnr=cl.get("psnr_per_image"))
     else:
         row["status"], row["error"] = "failed", fitted.get("error", "not run")
