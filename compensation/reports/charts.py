@@ -39,8 +39,8 @@ import numpy as np
 
 from compensation.experiments.jobs import cell_identity
 from compensation.methods import METHODS
-from compensation.reports.summary import (BREAK_GAIN_DB, CONFIDENCE, is_finite, order_key, closed_loop_gain,
-                                          n_train_follows)
+from compensation.reports.summary import (BREAK_GAIN_DB, CONFIDENCE, is_finite, mean_std, order_key,
+                                          closed_loop_gain, n_train_follows)
 from sim.io import atomic_write
 
 PANELS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("deltae", "ΔE (CIEDE2000)"))
@@ -201,8 +201,7 @@ def speed_points(summary: list[dict], key: str | None = None) -> list[dict]:
         groups.setdefault((r["method"], r["n_train"], *((cell_identity(r[key]),) if key else ())), []).append(r)
 
     def mean(vals):
-        vals = [v for v in vals if is_finite(v)]
-        return float(np.mean(vals)) if vals else math.nan
+        return mean_std(vals)[0]
 
     out = []
     for group, rs in groups.items():
