@@ -533,13 +533,13 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     crops = CropSampler(*captures.shape[2:], opt.patch, cfg.seed) if opt.patch else None
 
     def step(idx: torch.Tensor) -> torch.Tensor:
-        x, y, s = captures[idx], frames[idx], surface
-        if crops is not None:
+        x, y, s = captures, frames, surface
+        if crops is not None:  # the window first (views), so that only its pixels are gathered
             top, left = next(crops)
             window = (..., slice(top, top + opt.patch), slice(left, left + opt.patch))
             x, y = x[window], y[window]
             s = s if s is None else s[window]
-        x, y, s = _channels_last(x), _channels_last(y), s if s is None else _channels_last(s)
+        x, y, s = _channels_last(x[idx]), _channels_last(y[idx]), s if s is None else _channels_last(s)
         with torch.autocast(device.type, dtype=amp_dtype, enabled=use_amp):
             pred = model(x, s)
         loss = loss_fn(pred.float(), y)
