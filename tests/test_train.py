@@ -228,6 +228,40 @@ def test_amp_trains_under_bf16_autocast_on_cpu(data):
     assert not all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
 
 
+def test_a_run_predicts_in_the_precision_it_was_trained_in(run, data, tmp_path):
+    """A loaded run predicts under the autocast its ``amp`` option trained it under: bf16 outputs
+    of the convolutions, float32 results within a few 8-bit levels of float32 prediction."""
+    seen, original = [], CompenNet.forward
+
+    def spy(self, x, s=None, features=None):
+        out = original(self, x, s, features)
+        seen.append(out.dtype)
+        return out
+
+    config = json.loads((run / "config.json").read_text())
+    assert config["train"]["options"]["amp"] is False
+    amp_run = tmp_path / "amp"
+    shutil.copytree(run, amp_run)
+    config["train"]["options"] |= {"amp": True, "option_of_a_later_version": 1}  # unknown keys ignored
+    (amp_run / "config.json").write_text(json.dumps(config))
+    captures = data.test.captures[:4]
+    predicted = {}
+    for name, folder in (("float32", run), ("bf16", amp_run)):
+        method, _ = load_run(folder, device="cpu")
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(CompenNet, "forward", spy)
+            predicted[name] = method.predict(captures, data.surface)
+        assert set(seen) == {torch.float32 if name == "float32" else torch.bfloat16}
+        seen.clear()
+    assert predicted["bf16"].dtype == torch.float32
+    difference = (predicted["bf16"] - predicted["float32"]).abs()
+    assert 0 < difference.mean() < 1 / 255 and difference.max() < 8 / 255
+    config["train"]["options"]["amp"] = "yes"
+    (amp_run / "config.json").write_text(json.dumps(config))
+    with pytest.raises(ProcamError, match=re.escape(f"{amp_run / 'config.json'}: option amp = 'yes'")):
+        load_run(amp_run, device="cpu")
+
+
 def test_amp_warns_on_a_cpu_without_native_bf16(data, monkeypatch):
     monkeypatch.setattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", lambda: False)
     with pytest.warns(UserWarning, match="no native support .* may train slower than in float32 "

@@ -21,7 +21,7 @@ import io
 import os
 import shutil
 import subprocess
-from dataclasses import replace
+from dataclasses import fields, replace
 from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -35,7 +35,7 @@ from compensation.experiments.closed_loop import CAPTURES_DIR
 from compensation.methods import METHODS, check_config, get_method
 from compensation.methods.base import Method, load_state, resolve_device
 from compensation.scores.metrics import evaluate, psnr_per_image
-from compensation.training.config import NOT_IDENTITY, TrainConfig
+from compensation.training.config import NOT_IDENTITY, Options, TrainConfig
 from sim.dataset import MAX_SIDE
 from sim.errors import DatasetError, ProcamError
 from sim.io import (atomic_write, check_output_folder, read_json, read_png, to_float, to_uint8, write_json,
@@ -377,7 +377,27 @@ def load_run(run_dir: str | Path, device: str = "auto") -> tuple[Method, dict]:
         unreadable.
     """
     config = read_run_config(run_dir)
-    return get_method(config["train"]["method"]).load(Path(run_dir), device), config
+    method = get_method(config["train"]["method"]).load(Path(run_dir), device)
+    method.adopt_options(_recorded_options(method, config, Path(run_dir)))
+    return method, config
+
+
+def _recorded_options(method: Method, config: dict, run_dir: Path) -> Options:
+    """The method options ``config.json`` records, as the method's dataclass: keys this version
+    does not know are ignored and missing ones take their defaults (runs of older versions).
+
+    Raises
+    ------
+    ProcamError
+        If a recorded value is not one the option takes.
+    """
+    recorded = config["train"].get("options")
+    known = {f.name for f in fields(method.options)}
+    own = {k: v for k, v in recorded.items() if k in known} if isinstance(recorded, dict) else {}
+    try:
+        return method.options(**own)
+    except ProcamError as exc:
+        raise ProcamError(f"{run_dir / 'config.json'}: {exc}") from None
 
 
 def run_size(config: dict) -> tuple[int, int]:

@@ -295,6 +295,10 @@ class Method(abc.ABC):
             float32 (N, 3, H, W) in [0, 1] on the CPU; computed without gradients.
         """
 
+    def adopt_options(self, options: Options) -> None:
+        """Take from the ``options`` a loaded run was trained with those that change how it
+        predicts (see :func:`compensation.experiments.runs.load_run`); none by default."""
+
     @abc.abstractmethod
     def save(self, run_dir: Path) -> None:
         """Write the fitted state into ``run_dir`` (which exists)."""

@@ -325,7 +325,8 @@ class CompenNetOptions(Options):
     """Mixed precision: the network's forward pass under bf16 autocast (on the CPU, and on CUDA
     where the GPU supports bf16; fp16 with a gradient scaler on older GPUs), weights, optimiser
     and loss in float32 (paper: off). On a CPU with native bf16 (AVX-512 BF16 or AMX) a step
-    is about 1.7× as fast (``benchmarks/train.py --amp-ab``)."""
+    is about 1.7× as fast (``benchmarks/train.py --amp-ab``). The trained network also predicts
+    under it (``benchmarks/predict.py``)."""
     init: str | None = None
     """Run directory, or state dict file (``.pth``, e.g. an official CompenNet checkpoint, with or
     without DataParallel's ``module.`` prefix), whose weights initialise the network (pre-training;
@@ -410,6 +411,9 @@ class CompenNetMethod(Method):
     def __init__(self, device: str = "auto"):
         self.device = resolve_device(device)
         self.model: CompenNet | None = None
+        self.amp = False
+        """Predict under the autocast the network was trained under (its ``amp`` option;
+        ``benchmarks/predict.py`` measures time and scores against float32)."""
 
     @classmethod
     def check_image_size(cls, options: CompenNetOptions, width: int, height: int) -> None:
@@ -431,6 +435,7 @@ class CompenNetMethod(Method):
         if cfg.options.init is not None:
             load_weights(model, weights_file(cfg.options.init), self.name)
         self.model = model.to(self.device)
+        self.adopt_options(cfg.options)
         return fit_network(self.model, data, cfg, self.surface, progress, checkpoint)
 
     @torch.no_grad()
@@ -438,10 +443,16 @@ class CompenNetMethod(Method):
         if self.model is None:
             raise ProcamError(f"{self.name}: predict called before fit or load")
         self.model.eval()
-        features = self.model.surface_features(surface.to(self.device)) if self.surface else None
-        out = [self.model(captures[i:i + batch_size].to(self.device), features=features).float().cpu()
-               for i in range(0, captures.shape[0], batch_size)]
+        use_amp = self.amp and self.device.type in ("cpu", "cuda")
+        with torch.autocast(self.device.type, dtype=autocast_dtype(self.device), enabled=use_amp):
+            features = self.model.surface_features(surface.to(self.device)) if self.surface else None
+            out = [self.model(captures[i:i + batch_size].to(self.device), features=features).float().cpu()
+                   for i in range(0, captures.shape[0], batch_size)]
         return torch.cat(out)
+
+    def adopt_options(self, options: CompenNetOptions) -> None:
+        """Predict in the precision the network was trained in (``options.amp``)."""
+        self.amp = options.amp
 
     def save(self, run_dir: Path) -> None:
         if self.model is None:
