@@ -19,8 +19,8 @@ from compensation.methods.compennet import CompenNet, CompenNetOptions
 from compensation.methods.tps import TPSOptions
 from compensation.training.config import COMMON, PROFILES, TrainConfig
 from compensation.training.loop import BatchSampler
-from compensation.experiments.runs import (compensate, load_checkpoint, load_run, run_size,
-                                        scores_are_current, train_run)
+from compensation.experiments.runs import (SSIM_CONVENTION, compensate, load_checkpoint, load_run,
+                                        run_size, scores_are_current, train_run)
 from sim.errors import ProcamError
 from sim.io import read_png, to_uint8
 
@@ -228,9 +228,10 @@ def test_amp_trains_under_bf16_autocast_on_cpu(data):
     assert not all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
 
 
-def test_a_run_predicts_in_the_precision_it_was_trained_in(run, data, tmp_path):
-    """A loaded run predicts under the autocast its ``amp`` option trained it under: bf16 outputs
-    of the convolutions, float32 results within a few 8-bit levels of float32 prediction."""
+def test_a_run_predicts_in_the_precision_it_was_trained_in(run, setup_dir, data, tmp_path):
+    """A run trained under ``amp`` predicts under that autocast after training and once loaded:
+    bf16 outputs of the convolutions, the loaded run's scores those of its ``metrics.json``, its
+    predictions within a few 8-bit levels of float32 prediction; a float32 run predicts in float32."""
     seen, original = [], CompenNet.forward
 
     def spy(self, x, s=None, features=None):
@@ -238,28 +239,46 @@ def test_a_run_predicts_in_the_precision_it_was_trained_in(run, data, tmp_path):
         seen.append(out.dtype)
         return out
 
-    config = json.loads((run / "config.json").read_text())
-    assert config["train"]["options"]["amp"] is False
     amp_run = tmp_path / "amp"
-    shutil.copytree(run, amp_run)
-    config["train"]["options"] |= {"amp": True, "option_of_a_later_version": 1}  # unknown keys ignored
-    (amp_run / "config.json").write_text(json.dumps(config))
-    captures = data.test.captures[:4]
-    predicted = {}
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(CompenNet, "forward", spy)
+        metrics = train_run(setup_dir, tiny_config(iters=4, amp=True), amp_run, progress=False)
+    assert seen[-1] == torch.bfloat16  # the test set's prediction, after training
+    captures, predicted = data.test.captures, {}
     for name, folder in (("float32", run), ("bf16", amp_run)):
-        method, _ = load_run(folder, device="cpu")
+        seen.clear()
+        method, config = load_run(folder, device="cpu")
+        assert config["train"]["options"]["amp"] is (name == "bf16")
         with pytest.MonkeyPatch.context() as mp:
             mp.setattr(CompenNet, "forward", spy)
-            predicted[name] = method.predict(captures, data.surface)
+            predicted[name] = method.predict(captures, data.surface, batch_size=config["train"]["eval_batch"])
         assert set(seen) == {torch.float32 if name == "float32" else torch.bfloat16}
-        seen.clear()
     assert predicted["bf16"].dtype == torch.float32
-    difference = (predicted["bf16"] - predicted["float32"]).abs()
+    scores = evaluate(predicted["bf16"], data.test.frames, config["train"]["eval_batch"], SSIM_CONVENTION)
+    assert scores["psnr"] == pytest.approx(metrics["psnr"], abs=1e-9)
+    float32 = get_method("compennet")(device="cpu")  # the amp run's weights, predicting in float32
+    float32.model = method.model
+    difference = (predicted["bf16"] - float32.predict(captures, data.surface)).abs()
     assert 0 < difference.mean() < 1 / 255 and difference.max() < 8 / 255
-    config["train"]["options"]["amp"] = "yes"
-    (amp_run / "config.json").write_text(json.dumps(config))
-    with pytest.raises(ProcamError, match=re.escape(f"{amp_run / 'config.json'}: option amp = 'yes'")):
-        load_run(amp_run, device="cpu")
+
+
+@pytest.mark.parametrize("options, expected", [
+    ({"amp": "yes"}, "option amp = 'yes': expected true or false"),
+    ("amp", "train.options = 'amp': expected an object of the method's options"),
+])
+def test_a_run_whose_recorded_options_cannot_predict_is_named(run, tmp_path, options, expected):
+    """Keys a later version records are ignored; a value the method cannot predict with, or options
+    that are not an object, name the file."""
+    broken = tmp_path / "run"
+    shutil.copytree(run, broken)
+    config = json.loads((run / "config.json").read_text())
+    config["train"]["options"] |= {"option_of_a_later_version": 1}
+    (broken / "config.json").write_text(json.dumps(config))
+    assert load_run(broken, device="cpu")[0].amp is False
+    config["train"]["options"] = options
+    (broken / "config.json").write_text(json.dumps(config))
+    with pytest.raises(ProcamError, match=re.escape(f"{broken / 'config.json'}: {expected}")):
+        load_run(broken, device="cpu")
 
 
 def test_amp_warns_on_a_cpu_without_native_bf16(data, monkeypatch):

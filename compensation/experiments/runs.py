@@ -21,7 +21,7 @@ import io
 import os
 import shutil
 import subprocess
-from dataclasses import fields, replace
+from dataclasses import replace
 from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -35,7 +35,7 @@ from compensation.experiments.closed_loop import CAPTURES_DIR
 from compensation.methods import METHODS, check_config, get_method
 from compensation.methods.base import Method, load_state, resolve_device
 from compensation.scores.metrics import evaluate, psnr_per_image
-from compensation.training.config import NOT_IDENTITY, Options, TrainConfig
+from compensation.training.config import NOT_IDENTITY, TrainConfig
 from sim.dataset import MAX_SIDE
 from sim.errors import DatasetError, ProcamError
 from sim.io import (atomic_write, check_output_folder, read_json, read_png, to_float, to_uint8, write_json,
@@ -368,36 +368,29 @@ def read_run_config(run_dir: str | Path) -> dict:
 
 
 def load_run(run_dir: str | Path, device: str = "auto") -> tuple[Method, dict]:
-    """The fitted method of a run directory and its ``config.json`` (:func:`read_run_config`).
+    """The fitted method of a run directory and its ``config.json`` (:func:`read_run_config`),
+    predicting as it did when trained (the recorded options handed to
+    :meth:`~compensation.methods.base.Method.adopt_options`).
 
     Raises
     ------
     ProcamError
-        If the config is unreadable (:func:`read_run_config`) or the checkpoint is missing or
+        If the config is unreadable (:func:`read_run_config`), its ``train.options`` is not an
+        object or holds a value the method cannot predict with, or the checkpoint is missing or
         unreadable.
     """
     config = read_run_config(run_dir)
+    config_file = Path(run_dir) / "config.json"
+    recorded = config["train"].get("options") or {}  # runs of older versions may record none
+    if not isinstance(recorded, dict):
+        raise ProcamError(f"{config_file}: train.options = {recorded!r}: expected an object of "
+                          "the method's options")
     method = get_method(config["train"]["method"]).load(Path(run_dir), device)
-    method.adopt_options(_recorded_options(method, config, Path(run_dir)))
-    return method, config
-
-
-def _recorded_options(method: Method, config: dict, run_dir: Path) -> Options:
-    """The method options ``config.json`` records, as the method's dataclass: keys this version
-    does not know are ignored and missing ones take their defaults (runs of older versions).
-
-    Raises
-    ------
-    ProcamError
-        If a recorded value is not one the option takes.
-    """
-    recorded = config["train"].get("options")
-    known = {f.name for f in fields(method.options)}
-    own = {k: v for k, v in recorded.items() if k in known} if isinstance(recorded, dict) else {}
     try:
-        return method.options(**own)
+        method.adopt_options(recorded)
     except ProcamError as exc:
-        raise ProcamError(f"{run_dir / 'config.json'}: {exc}") from None
+        raise ProcamError(f"{config_file}: {exc}") from None
+    return method, config
 
 
 def run_size(config: dict) -> tuple[int, int]:

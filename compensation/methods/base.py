@@ -295,9 +295,17 @@ class Method(abc.ABC):
             float32 (N, 3, H, W) in [0, 1] on the CPU; computed without gradients.
         """
 
-    def adopt_options(self, options: Options) -> None:
-        """Take from the ``options`` a loaded run was trained with those that change how it
-        predicts (see :func:`compensation.experiments.runs.load_run`); none by default."""
+    def adopt_options(self, recorded: dict) -> None:
+        """Take from the options a run recorded (its ``config.json``'s ``train.options``) those
+        that change how the fitted method predicts; none by default. :meth:`load` restores the
+        fitted state only; :func:`compensation.experiments.runs.load_run` calls this after it, so
+        that a loaded run predicts as it did after :meth:`fit`.
+
+        Raises
+        ------
+        ProcamError
+            If such an option's recorded value is not one the method takes (naming the option).
+        """
 
     @abc.abstractmethod
     def save(self, run_dir: Path) -> None:
@@ -306,4 +314,5 @@ class Method(abc.ABC):
     @classmethod
     @abc.abstractmethod
     def load(cls, run_dir: Path, device: str = "auto") -> Method:
-        """A fitted method restored from ``run_dir``."""
+        """A fitted method restored from ``run_dir`` (its fitted state; the options that change
+        how it predicts come from :meth:`adopt_options`)."""

@@ -412,8 +412,9 @@ class CompenNetMethod(Method):
         self.device = resolve_device(device)
         self.model: CompenNet | None = None
         self.amp = False
-        """Predict under the autocast the network was trained under (its ``amp`` option;
-        ``benchmarks/predict.py`` measures time and scores against float32)."""
+        """Predict under autocast, as the network was trained with its ``amp`` option (bf16 on
+        the CPU and on GPUs that support it, else fp16: :func:`autocast_dtype` of the prediction
+        device); ``benchmarks/predict.py`` measures time and scores against float32."""
 
     @classmethod
     def check_image_size(cls, options: CompenNetOptions, width: int, height: int) -> None:
@@ -435,7 +436,7 @@ class CompenNetMethod(Method):
         if cfg.options.init is not None:
             load_weights(model, weights_file(cfg.options.init), self.name)
         self.model = model.to(self.device)
-        self.adopt_options(cfg.options)
+        self.amp = cfg.options.amp
         return fit_network(self.model, data, cfg, self.surface, progress, checkpoint)
 
     @torch.no_grad()
@@ -450,9 +451,13 @@ class CompenNetMethod(Method):
                    for i in range(0, captures.shape[0], batch_size)]
         return torch.cat(out)
 
-    def adopt_options(self, options: CompenNetOptions) -> None:
-        """Predict in the precision the network was trained in (``options.amp``)."""
-        self.amp = options.amp
+    def adopt_options(self, recorded: dict) -> None:
+        """Predict in the precision the network was trained in (the recorded ``amp``; off when
+        not recorded)."""
+        amp = recorded.get("amp", False)
+        if not isinstance(amp, bool):
+            raise ProcamError(f"option amp = {amp!r}: expected true or false")
+        self.amp = amp
 
     def save(self, run_dir: Path) -> None:
         if self.model is None:
