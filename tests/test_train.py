@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from helpers import run_benchmark
 
 from compensation.scores.metrics import evaluate
 from compensation.methods import METHODS, check_config, config_from_dict, get_method, make_config
@@ -260,6 +261,21 @@ def test_a_run_predicts_in_the_precision_it_was_trained_in(run, setup_dir, data,
     float32.model = method.model
     difference = (predicted["bf16"] - float32.predict(captures, data.surface)).abs()
     assert 0 < difference.mean() < 1 / 255 and difference.max() < 8 / 255
+
+
+def test_the_prediction_benchmark_scores_both_precisions(run, data):
+    """``benchmarks/predict.py``: both precisions timed and scored, the float32 row the run's own
+    ``metrics.json``, the difference between them printed in 8-bit levels."""
+    proc = run_benchmark("predict.py", str(run), "--images", str(len(data.test)), "--repeat", "1",
+                         "--threads", "1")
+    assert proc.returncode == 0, proc.stderr
+    rows = dict(re.findall(r"^  (float32|bf16) .* PSNR ([\d.]+) ", proc.stdout, re.MULTILINE))
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert set(rows) == {"float32", "bf16"}
+    assert float(rows["float32"]) == pytest.approx(metrics["psnr"], abs=1e-4)
+    assert abs(float(rows["bf16"]) - float(rows["float32"])) < 0.5
+    assert re.search(r"bf16 / float32 time: [\d.]+; \|bf16 − float32\| mean [\d.]+, max [\d.]+ 8-bit levels",
+                     proc.stdout)
 
 
 @pytest.mark.parametrize("options, expected", [
