@@ -6,6 +6,7 @@ import csv
 import json
 import re
 import shutil
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -298,10 +299,19 @@ def test_a_run_whose_recorded_options_cannot_predict_is_named(run, tmp_path, opt
 
 
 def test_amp_warns_on_a_cpu_without_native_bf16(data, monkeypatch):
+    """Training and prediction under amp both warn where the CPU would emulate bf16; float32 does not."""
     monkeypatch.setattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", lambda: False)
-    with pytest.warns(UserWarning, match="no native support .* may train slower than in float32 "
-                                         r"\(--no-amp\)"):
-        get_method("compennet")(device="cpu").fit(data, tiny_config(iters=2, amp=True), progress=False)
+    expected = (r"for which this CPU has no native support .* may train and predict slower than in float32 "
+                r"\(--no-amp\)")
+    method = get_method("compennet")(device="cpu")
+    with pytest.warns(UserWarning, match=re.escape(f"{data.name}: amp computes in bf16, ") + expected):
+        method.fit(data, tiny_config(iters=2, amp=True), progress=False)
+    with pytest.warns(UserWarning, match="compennet: amp computes in bf16, " + expected):
+        method.predict(data.test.captures[:1], data.surface)
+    method.amp = False
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        method.predict(data.test.captures[:1], data.surface)
 
 
 @pytest.mark.slow

@@ -413,7 +413,7 @@ class CompenNetMethod(Method):
         self.model: CompenNet | None = None
         self.amp = False
         """Predict under autocast, as the network was trained with its ``amp`` option (bf16 on
-        the CPU and on GPUs that support it, else fp16: :func:`autocast_dtype` of the prediction
+        the CPU and on GPUs that support it, else fp16: :func:`forward_dtype` of the prediction
         device); ``benchmarks/predict.py`` measures time and scores against float32."""
 
     @classmethod
@@ -444,8 +444,7 @@ class CompenNetMethod(Method):
         if self.model is None:
             raise ProcamError(f"{self.name}: predict called before fit or load")
         self.model.eval()
-        use_amp = self.amp and self.device.type in ("cpu", "cuda")
-        with torch.autocast(self.device.type, dtype=autocast_dtype(self.device), enabled=use_amp):
+        with computing_in(forward_dtype(self.device, self.amp, self.name), self.device):
             features = self.model.surface_features(surface.to(self.device)) if self.surface else None
             out = [self.model(captures[i:i + batch_size].to(self.device), features=features).float().cpu()
                    for i in range(0, captures.shape[0], batch_size)]
@@ -504,6 +503,37 @@ def native_bf16() -> bool:
     return torch.ops.mkldnn._is_mkldnn_bf16_supported()
 
 
+def forward_dtype(device: torch.device, amp: bool, label: str) -> torch.dtype:
+    """The type a CompenNet forward pass computes in on ``device``: :func:`autocast_dtype` with
+    ``amp`` on the CPU and CUDA, else float32. Warns, naming ``label``, where ``amp`` on this CPU
+    would emulate bf16 (no AVX-512 BF16 or AMX), which may run slower than float32.
+
+    >>> forward_dtype(torch.device("cpu"), False, "run"), forward_dtype(torch.device("mps"), True, "run")
+    (torch.float32, torch.float32)
+    """
+    if not amp or device.type not in ("cpu", "cuda"):
+        return torch.float32
+    if device.type == "cpu" and not native_bf16():
+        warnings.warn(f"{label}: amp computes in bf16, for which this CPU has no native support "
+                      "(AVX-512 BF16 or AMX): it may train and predict slower than in float32 "
+                      "(--no-amp)", stacklevel=3)
+    return autocast_dtype(device)
+
+
+def computing_in(dtype: torch.dtype, device: torch.device) -> torch.autocast:
+    """The autocast context of a forward pass computing in ``dtype`` (:func:`forward_dtype`) on
+    ``device``; disabled for float32.
+
+    >>> with computing_in(torch.bfloat16, torch.device("cpu")):
+    ...     torch.nn.functional.conv2d(torch.ones(1, 1, 2, 2), torch.ones(1, 1, 1, 1)).dtype
+    torch.bfloat16
+    >>> with computing_in(torch.float32, torch.device("cpu")):
+    ...     torch.nn.functional.conv2d(torch.ones(1, 1, 2, 2), torch.ones(1, 1, 1, 1)).dtype
+    torch.float32
+    """
+    return torch.autocast(device.type, dtype=dtype, enabled=dtype != torch.float32)
+
+
 def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_surface: bool,
                 progress: bool = True, checkpoint: Path | None = None) -> FitResult:
     """Train a CompenNet-style ``model`` (already on its device) on ``data.train``: the paper's recipe.
@@ -514,7 +544,7 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     branch is fed s̃ with batch 1, broadcast over the batch (computed once per batch, not once per
     sample). With ``cfg.options.patch`` > 0 every step trains on one random window of that side cut
     out of the batch's captures, frames and the surface alike (:class:`CropSampler`). With
-    ``cfg.options.amp`` the forward pass runs under autocast (:func:`autocast_dtype`; a gradient
+    ``cfg.options.amp`` the forward pass runs under autocast (:func:`forward_dtype`; a gradient
     scaler for fp16 only).
 
     The network and the images are kept in the channels-last memory layout while training
@@ -532,13 +562,8 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     """
     opt = cfg.options
     device = next(model.parameters()).device
-    use_amp = opt.amp and device.type in ("cpu", "cuda")
-    amp_dtype = autocast_dtype(device) if use_amp else torch.float32
-    if use_amp and device.type == "cpu" and not native_bf16():
-        warnings.warn(f"{data.name}: amp trains in bf16, for which this CPU has no native support "
-                      "(AVX-512 BF16 or AMX): it may train slower than in float32 (--no-amp)",
-                      stacklevel=2)
-    scaler = torch.amp.GradScaler(device.type, enabled=use_amp and amp_dtype == torch.float16)
+    amp_dtype = forward_dtype(device, opt.amp, data.name)
+    scaler = torch.amp.GradScaler(device.type, enabled=amp_dtype == torch.float16)
     model.to(memory_format=torch.channels_last)
     optimizer = torch.optim.Adam(model.parameters(), lr=opt.lr, weight_decay=opt.weight_decay)
     scheduler = _scheduler(optimizer, opt)
@@ -556,7 +581,7 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
             x, y = x[window], y[window]
             s = s if s is None else s[window]
         x, y, s = _channels_last(x[idx]), _channels_last(y[idx]), s if s is None else _channels_last(s)
-        with torch.autocast(device.type, dtype=amp_dtype, enabled=use_amp):
+        with computing_in(amp_dtype, device):
             pred = model(x, s)
         loss = loss_fn(pred.float(), y)
         optimizer.zero_grad(set_to_none=True)
