@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import re
 import sys
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -146,21 +147,36 @@ KINDS = {RenderJob: "render", FitJob: "fit", BaselineJob: "score"}
 """The kind of each job of a plan, as the progress line counts them."""
 
 
-def eta(done: Mapping[str, Sequence[float]], remaining: Mapping[str, int], workers: int = 1) -> float | None:
-    """Seconds left: each kind's remaining jobs times the mean duration of the jobs of that kind
-    that did work so far (``done``: durations by kind, reused jobs left out), over ``workers`` jobs
-    running side by side; None while a kind with jobs left has none done.
+def fit_group(method: str) -> str:
+    """The timing group of a fit of ``method`` (:func:`timing_group`).
 
-    >>> eta({"render": [10.0, 20.0], "fit": [60.0]}, {"render": 1, "fit": 2, "score": 0})
+    >>> fit_group("compennet")
+    'compennet fit'
+    """
+    return f"{method} fit"
+
+
+def timing_group(job: RenderJob | FitJob | BaselineJob) -> str:
+    """The jobs whose durations predict ``job``'s: its kind (:data:`KINDS`), and for a fit its method
+    too (a spline fit takes seconds, a network's training minutes)."""
+    return fit_group(job.cfg.method) if isinstance(job, FitJob) else KINDS[type(job)]
+
+
+def eta(done: Mapping[str, Sequence[float]], remaining: Mapping[str, int], workers: int = 1) -> float | None:
+    """Seconds left: each timing group's remaining jobs times the mean duration of the jobs of
+    that group that did work so far (``done``: durations by group, reused jobs left out), over
+    ``workers`` jobs running side by side; None while a group with jobs left has none done.
+
+    >>> eta({"render": [10.0, 20.0], "tps fit": [60.0]}, {"render": 1, "tps fit": 2, "score": 0})
     135.0
-    >>> eta({"render": [10.0, 20.0], "fit": [60.0]}, {"render": 1, "fit": 2}, workers=3)
+    >>> eta({"render": [10.0, 20.0], "tps fit": [60.0]}, {"render": 1, "tps fit": 2}, workers=3)
     45.0
-    >>> eta({"render": [10.0]}, {"render": 1, "fit": 2}) is None
+    >>> eta({"render": [10.0], "tps fit": [1.0]}, {"render": 1, "tps fit": 1, "compennet fit": 1}) is None
     True
     """
-    if any(n > 0 and not done.get(kind) for kind, n in remaining.items()):
+    if any(n > 0 and not done.get(group) for group, n in remaining.items()):
         return None
-    return sum(n * sum(done[kind]) / len(done[kind]) for kind, n in remaining.items() if n > 0) / workers
+    return sum(n * sum(done[group]) / len(done[group]) for group, n in remaining.items() if n > 0) / workers
 
 
 def duration(seconds: float | None) -> str:
@@ -181,33 +197,37 @@ def duration(seconds: float | None) -> str:
 class JobCount:
     """The overall progress of a plan: at the start and after each job, one line on stderr with the jobs of each
     kind (:data:`KINDS`) done of all, how many were reused (finished earlier: no work) and failed
-    (or not tried because one they need failed), and the time left (:func:`eta`).
+    (or not tried because one they need failed), and the time left (:func:`eta` over the timing
+    groups of :func:`timing_group`).
 
     Parameters
     ----------
     totals : dict
-        Kind → the plan's jobs of that kind.
+        Kind → timing group → the plan's jobs of that group, e.g. ``{"render": {"render": 2},
+        "fit": {"tps fit": 2, "compennet fit": 2}, "score": {"score": 2}}``.
     workers : int
         Jobs running side by side.
     show : bool
         Print the line (else only count).
     """
 
-    def __init__(self, totals: dict[str, int], workers: int = 1, show: bool = True):
-        self.totals, self.workers, self.show = dict(totals), workers, show
+    def __init__(self, totals: Mapping[str, Mapping[str, int]], workers: int = 1, show: bool = True):
+        self.workers, self.show = workers, show
+        self.totals = {kind: sum(groups.values()) for kind, groups in totals.items()}
+        self.kind_of = {group: kind for kind, groups in totals.items() for group in groups}
+        self.left = {group: n for groups in totals.values() for group, n in groups.items()}
         self.done = dict.fromkeys(totals, 0)
-        self.seconds: dict[str, list[float]] = {kind: [] for kind in totals}
+        self.seconds: dict[str, list[float]] = {group: [] for group in self.left}
         self.reused = self.failed = 0
 
     def line(self) -> str:
         """The progress line, e.g. ``procam: jobs done: renders 2/2, fits 1/4, scores 2/2
-        (1 reused, 0 failed); time left about 3 min``, or ``time left unknown (no fit run yet)``
-        while a kind with jobs left has none that did work."""
+        (1 reused, 0 failed); time left about 3 min``, or ``time left unknown (no compennet fit
+        run yet)`` while a timing group with jobs left has none that did work."""
         counts = ", ".join(f"{kind}s {self.done[kind]}/{n}" for kind, n in self.totals.items())
-        remaining = {kind: n - self.done[kind] for kind, n in self.totals.items()}
-        left = eta(self.seconds, remaining, self.workers)
+        left = eta(self.seconds, self.left, self.workers)
         if left is None:
-            untimed = [kind for kind, n in remaining.items() if n > 0 and not self.seconds[kind]]
+            untimed = [group for group, n in self.left.items() if n > 0 and not self.seconds[group]]
             when = f"unknown (no {' or '.join(untimed)} run yet)"
         else:
             when = f"about {duration(left)}"
@@ -218,24 +238,29 @@ class JobCount:
         if self.show:
             tqdm.write(self.line(), file=sys.stderr)
 
-    def not_tried(self, kind: str, n: int) -> None:
-        """Count ``n`` jobs of ``kind`` that cannot run (one they need failed) as failed."""
-        if n:
-            self.done[kind] += n
-            self.failed += n
+    def not_tried(self, groups: Sequence[str]) -> None:
+        """Count one job of each timing group of ``groups`` that cannot run (one it needs failed)
+        as failed."""
+        for group in groups:
+            self.done[self.kind_of[group]] += 1
+            self.left[group] -= 1
+            self.failed += 1
+        if groups:
             self.report()
 
     def run(self, executor, batch: Sequence[Task]) -> list[dict]:
         """``executor.run(batch)``, counting each job as it finishes."""
         def finished(i: int, record: dict, seconds: float) -> None:
-            kind = KINDS[type(batch[i].job)]
-            self.done[kind] += 1
+            job = batch[i].job
+            group = timing_group(job)
+            self.done[KINDS[type(job)]] += 1
+            self.left[group] -= 1
             if not record["ok"]:
                 self.failed += 1
             elif record.get("reused"):  # the job's own word: it found its work finished
                 self.reused += 1
             else:
-                self.seconds[kind].append(seconds)
+                self.seconds[group].append(seconds)
             self.report()
 
         return executor.run(batch, on_done=finished)
@@ -260,7 +285,8 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
     """
     out, data_root = Path(out), Path(data_root)
     gpus = executor.gpus()
-    count = JobCount({"render": len(plan.setups), "fit": len({r.run for r in plan.runs}), "score": len(setups)},
+    fits = Counter(fit_group(method) for method in {r.run: r.cfg.method for r in plan.runs}.values())
+    count = JobCount({"render": {"render": len(plan.setups)}, "fit": fits, "score": {"score": len(setups)}},
                      getattr(executor, "workers", 1), progress)
     count.report()
     renders = [RenderJob(data_root, s, spec, progress, raw) for s in plan.setups.values()]
@@ -268,7 +294,7 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
     if scoring.renders_required and (failed := [s for s, d in rendered.items() if not d["ok"]]):
         raise ProcamError(f"render {failed[0]}: {rendered[failed[0]]['error']}")
     ready = [s for s in setups if rendered.get(s, {"ok": True})["ok"]]
-    count.not_tried("score", len(setups) - len(ready))
+    count.not_tried(["score"] * (len(setups) - len(ready)))
 
     def job(r: Run) -> FitJob:
         return FitJob(data_root / r.setup, r.cfg, out / r.run, closed_loop=scoring.closed_loop and r.scored,
@@ -289,7 +315,8 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
                                  "error": f"{r.after} failed: {fitted.get(r.after, {}).get('error')}"}
             else:
                 unique.setdefault(r.run, job(r))
-        count.not_tried("fit", len({r.run for r in stage if fitted.get(r.run, {}).get("skipped")}))
+        skipped = {r.run: r.cfg.method for r in stage if fitted.get(r.run, {}).get("skipped")}
+        count.not_tried([fit_group(method) for method in skipped.values()])
         bases = []
         if stage is stages[-1]:
             bases = [BaselineJob(data_root / s, scoring.n_test, scoring.closed_loop,
