@@ -20,7 +20,7 @@ from compensation.methods.base import load_state
 from compensation.methods.compennet import CompenNet, CompenNetOptions
 from compensation.methods.tps import TPSOptions
 from compensation.training.config import COMMON, PROFILES, TrainConfig
-from compensation.training.loop import BatchSampler
+from compensation.training.loop import BatchSampler, LoopResult
 from compensation.experiments.runs import (SSIM_CONVENTION, compensate, load_checkpoint, load_run,
                                         run_size, scores_are_current, train_run)
 from sim.errors import ProcamError
@@ -264,19 +264,73 @@ def test_a_run_predicts_in_the_precision_it_was_trained_in(run, setup_dir, data,
     assert 0 < difference.mean() < 1 / 255 and difference.max() < 8 / 255
 
 
-def test_the_prediction_benchmark_scores_both_precisions(run, data):
-    """``benchmarks/predict.py``: both precisions timed and scored, the float32 row the run's own
-    ``metrics.json``, the difference between them printed in 8-bit levels."""
+def test_the_prediction_benchmark_scores_every_way(run, data):
+    """``benchmarks/predict.py``: both precisions, both layouts and the weights with and without
+    their subnormals timed and scored; the float32 row the run's own ``metrics.json``, the layouts
+    equal to float rounding, zeroing the subnormals changing nothing; the differences printed in
+    8-bit levels."""
     proc = run_benchmark("predict.py", str(run), "--images", str(len(data.test)), "--repeat", "1",
                          "--threads", "1")
     assert proc.returncode == 0, proc.stderr
-    rows = dict(re.findall(r"^  (float32|bf16) .* PSNR ([\d.]+) ", proc.stdout, re.MULTILINE))
+    rows = dict(re.findall(r"^  (\S.*?) +[\d.]+ s \(.* PSNR ([\d.]+) ", proc.stdout, re.MULTILINE))
     metrics = json.loads((run / "metrics.json").read_text())
-    assert set(rows) == {"float32", "bf16"}
+    assert set(rows) == {"float32", "float32, default layout", "float32, subnormals kept", "bf16",
+                         "bf16, default layout"}
     assert float(rows["float32"]) == pytest.approx(metrics["psnr"], abs=1e-4)
+    assert float(rows["float32, default layout"]) == pytest.approx(metrics["psnr"], abs=1e-4)
+    assert rows["float32, subnormals kept"] == rows["float32"]
     assert abs(float(rows["bf16"]) - float(rows["float32"])) < 0.5
-    assert re.search(r"bf16 / float32 time: [\d.]+; \|bf16 − float32\| mean [\d.]+, max [\d.]+ 8-bit levels",
-                     proc.stdout)
+    levels = r"[\d.]+; \|difference\| mean ([\d.e+-]+), max ([\d.e+-]+) 8-bit levels"
+    assert re.search(rf"bf16 / float32 time: {levels}", proc.stdout)
+    layouts = re.search(rf"channels-last / default layout time, float32: {levels}", proc.stdout)
+    assert layouts and float(layouts[2]) < 0.01
+    zeroed = re.search(rf"subnormals zeroed / kept time, float32: {levels}", proc.stdout)
+    assert zeroed and float(zeroed[2]) == 0
+    assert re.search(r"; \d+ of \d+ weights in model.pt subnormal", proc.stdout)
+
+
+def test_subnormal_weights_are_zeroed_when_trained_and_loaded(data, tmp_path):
+    """A fitted or loaded network holds no subnormal weights (they slow a CPU's float32 multiplies
+    several-fold); zeroing them leaves its predictions as they were."""
+    tiny = torch.finfo(torch.float32).tiny
+
+    def subnormal(model: torch.nn.Module) -> int:
+        return sum(int(((p.abs() < tiny) & (p != 0)).sum()) for p in model.parameters())
+
+    def training_that_leaves_subnormals(step, *args, **kwargs):
+        for _ in range(3):
+            step(torch.arange(8))
+        with torch.no_grad():
+            method.model.conv1.weight[0, 0] = 1e-40  # one 3x3 kernel
+        return LoopResult(1.0, 24.0, 8, [[0.1, 1e-3]] * 3)
+
+    method = get_method("compennet")(device="cpu")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr("compensation.methods.compennet.train_loop", training_that_leaves_subnormals)
+        method.fit(data, tiny_config(iters=3), progress=False)
+    assert subnormal(method.model) == 0
+    captures = data.test.captures
+    with torch.no_grad():  # plant subnormal weights where the trained ones are smallest
+        weight = method.model.conv4_s.weight
+        smallest = weight.abs().flatten().argsort()[:500]
+        weight.view(-1)[smallest] = torch.where(weight.view(-1)[smallest] < 0, -1e-40, 1e-40)
+    assert subnormal(method.model) == 500
+    planted = method.predict(captures, data.surface)
+    method.save(tmp_path)
+    assert sum(int(((v.abs() < tiny) & (v != 0)).sum()) for v in load_state(tmp_path / "model.pt").values()) == 500
+    loaded = get_method("compennet").load(tmp_path, device="cpu")
+    assert subnormal(loaded.model) == 0
+    assert torch.equal(loaded.predict(captures, data.surface), planted)
+
+
+def test_prediction_layouts_agree(run, data):
+    """Prediction in the channels-last layout (procam's) equals the default layout's to float
+    rounding, and returns a tensor in the default layout."""
+    method, _ = load_run(run, device="cpu")
+    fast = method.predict(data.test.captures, data.surface)
+    method.layout = torch.contiguous_format
+    torch.testing.assert_close(fast, method.predict(data.test.captures, data.surface), rtol=0, atol=1e-5)
+    assert fast.is_contiguous() and next(method.model.parameters()).is_contiguous()
 
 
 @pytest.mark.parametrize("options, expected", [

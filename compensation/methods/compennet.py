@@ -38,8 +38,8 @@ from typing import TYPE_CHECKING, ClassVar, Literal
 import torch
 from torch import Tensor, nn
 
-from compensation.methods.base import (CHECKPOINT, FitResult, Method, load_weights, resolve_device,
-                                       save_state, weights_file)
+from compensation.methods.base import (CHECKPOINT, FitResult, Method, flush_denormals, load_weights,
+                                       resolve_device, save_state, weights_file)
 from compensation.scores.losses import LOSSES, get_loss
 from compensation.training.config import MAX_ITERS, Options, TrainConfig
 from compensation.training.conv_grad import faster_backward
@@ -415,6 +415,10 @@ class CompenNetMethod(Method):
         """Predict under autocast, as the network was trained with its ``amp`` option (bf16 on
         the CPU and on GPUs that support it, else fp16: :func:`forward_dtype` of the prediction
         device); ``benchmarks/predict.py`` measures time and scores against float32."""
+        self.layout = torch.channels_last
+        """The memory layout the network predicts in: channels-last, oneDNN's native layout on the
+        CPU and the tensor cores' on CUDA (the values are the default layout's to float rounding;
+        ``benchmarks/predict.py`` measures both)."""
 
     @classmethod
     def check_image_size(cls, options: CompenNetOptions, width: int, height: int) -> None:
@@ -443,12 +447,18 @@ class CompenNetMethod(Method):
     def predict(self, captures: torch.Tensor, surface: torch.Tensor, batch_size: int = 64) -> torch.Tensor:
         if self.model is None:
             raise ProcamError(f"{self.name}: predict called before fit or load")
-        self.model.eval()
-        with computing_in(forward_dtype(self.device, self.amp, self.name), self.device):
-            features = self.model.surface_features(surface.to(self.device)) if self.surface else None
-            out = [self.model(captures[i:i + batch_size].to(self.device), features=features).float().cpu()
-                   for i in range(0, captures.shape[0], batch_size)]
-        return torch.cat(out)
+        layout = self.layout
+        self.model.eval().to(memory_format=layout)
+        try:
+            with computing_in(forward_dtype(self.device, self.amp, self.name), self.device):
+                features = (self.model.surface_features(surface.to(self.device, memory_format=layout))
+                            if self.surface else None)
+                out = [self.model(captures[i:i + batch_size].to(self.device, memory_format=layout),
+                                  features=features).float().cpu()
+                       for i in range(0, captures.shape[0], batch_size)]
+        finally:
+            self.model.to(memory_format=torch.contiguous_format)
+        return torch.cat(out).contiguous()
 
     def adopt_options(self, recorded: dict) -> None:
         """Predict in the precision the network was trained in (the recorded ``amp``; off when
@@ -550,7 +560,8 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
     The network and the images are kept in the channels-last memory layout while training
     (oneDNN's native layout on the CPU, ``benchmarks/train.py`` measures its effect; the layout of
     CUDA's tensor-core convolutions); the values are those of the default layout to float
-    rounding, and the model is returned in the default layout. On the CPU the transposed
+    rounding, and the model is returned in the default layout, its subnormal weights set to zero
+    (:func:`~compensation.methods.base.flush_denormals`). On the CPU the transposed
     convolutions take their backward pass as the strided convolutions they transpose, and on
     AVX2 CPUs the wide convolutions their weight gradient in the default layout
     (:func:`~compensation.training.conv_grad.faster_backward`).
@@ -605,6 +616,7 @@ def fit_network(model: torch.nn.Module, data: SetupData, cfg: TrainConfig, use_s
                                 stateful, checkpoint, cfg.checkpoint_every, opt.sampler)
     finally:
         model.to(memory_format=torch.contiguous_format)
+    flush_denormals(model)
     return FitResult.of_loop(result)
 
 
