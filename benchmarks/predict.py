@@ -27,7 +27,7 @@ import torch
 
 from compensation.data import load_setup_data
 from compensation.experiments.runs import SSIM_CONVENTION, load_run
-from compensation.methods.base import CHECKPOINT, load_state
+from compensation.methods.base import CHECKPOINT, load_state, subnormal
 from compensation.methods.compennet import CompenNetMethod
 from compensation.scores.metrics import evaluate
 
@@ -47,7 +47,7 @@ def main() -> None:
     captures, frames, batch = data.test.captures, data.test.frames, config["train"]["eval_batch"]
     kept = copy.deepcopy(method.model)  # the weights as the file holds them, subnormals kept
     kept.load_state_dict(load_state(args.run / CHECKPOINT))
-    subnormal = sum(int(((p.abs() < torch.finfo(p.dtype).tiny) & (p != 0)).sum()) for p in kept.parameters())
+    n_subnormal = sum(int(subnormal(p).sum()) for p in kept.parameters())
     zeroed, fast, default = method.model, torch.channels_last, torch.contiguous_format
     ways = {  # row: (bf16, layout, weights)
         "float32": (False, fast, zeroed),
@@ -65,7 +65,7 @@ def main() -> None:
             best[way] = min(best.get(way, float("inf")), time.perf_counter() - start)
     h, w = captures.shape[2:]
     print(f"{args.run}: {len(captures)} test pairs of {w}x{h}, {args.threads} threads, "
-          f"best of {args.repeat}; {subnormal} of {sum(p.numel() for p in kept.parameters())} weights "
+          f"best of {args.repeat}; {n_subnormal} of {sum(p.numel() for p in kept.parameters())} weights "
           f"in {CHECKPOINT} subnormal")
     for way in ways:
         scores = evaluate(predicted[way], frames, batch, SSIM_CONVENTION)
@@ -73,7 +73,7 @@ def main() -> None:
               f"PSNR {scores['psnr']:.4f}  SSIM {scores['ssim']:.4f}  deltaE {scores['deltaE']:.4f}")
 
     def compared(a: str, b: str) -> str:
-        """``a``'s time over ``b``'s, and the largest difference of their predictions."""
+        """``a``'s time over ``b``'s, and the mean and largest difference of their predictions."""
         difference = (predicted[a] - predicted[b]).abs()
         return (f"{best[a] / best[b]:.3f}; |difference| mean {255 * difference.mean():.3g}, "
                 f"max {255 * difference.max():.3g} 8-bit levels")

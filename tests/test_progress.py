@@ -38,7 +38,8 @@ def test_each_method_times_its_own_fits(tmp_path):
     tps, net = make_config("quick", "tps"), make_config("quick", "compennet")
     count = JobCount({"fit": {fit_group("tps"): 2, fit_group("compennet"): 2}})
     count.run(_Timed(), [Task(None, FitJob(tmp_path, tps, tmp_path / "2"))])
-    assert count.line().endswith("fits 1/4 (0 reused, 0 failed); time left unknown (no compennet fit run yet)")
+    assert count.line().endswith("fits 1/4 (0 reused, 0 failed); time left unknown "
+                                 "(no compennet fit run yet)")
     count.run(_Timed(), [Task(None, FitJob(tmp_path, net, tmp_path / "300"))])
     assert count.seconds == {"tps fit": [2.0], "compennet fit": [300.0]}
     assert count.line().endswith("fits 2/4 (0 reused, 0 failed); time left about 5 min")  # 2 s + 300 s

@@ -16,7 +16,7 @@ from helpers import run_benchmark
 
 from compensation.scores.metrics import evaluate
 from compensation.methods import METHODS, check_config, config_from_dict, get_method, make_config
-from compensation.methods.base import load_state
+from compensation.methods.base import load_state, subnormal
 from compensation.methods.compennet import CompenNet, CompenNetOptions
 from compensation.methods.tps import TPSOptions
 from compensation.training.config import COMMON, PROFILES, TrainConfig
@@ -264,12 +264,22 @@ def test_a_run_predicts_in_the_precision_it_was_trained_in(run, setup_dir, data,
     assert 0 < difference.mean() < 1 / 255 and difference.max() < 8 / 255
 
 
-def test_the_prediction_benchmark_scores_every_way(run, data):
+def _count_subnormal(tensors) -> int:
+    return sum(int(subnormal(t).sum()) for t in tensors)
+
+
+def test_the_prediction_benchmark_scores_every_way(run, data, tmp_path):
     """``benchmarks/predict.py``: both precisions, both layouts and the weights with and without
-    their subnormals timed and scored; the float32 row the run's own ``metrics.json``, the layouts
-    equal to float rounding, zeroing the subnormals changing nothing; the differences printed in
-    8-bit levels."""
-    proc = run_benchmark("predict.py", str(run), "--images", str(len(data.test)), "--repeat", "1",
+    their subnormals (planted in a copy of the run's ``model.pt``) timed and scored; the float32
+    row the run's own ``metrics.json``, the layouts equal to float rounding, zeroing the subnormals
+    changing nothing; the differences printed in 8-bit levels."""
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    state = load_state(copy / "model.pt")
+    weight = state["conv4_s.weight"].view(-1)
+    weight[weight.abs().argsort()[:300]] = 1e-40  # the smallest weights made subnormal
+    torch.save(state, copy / "model.pt")
+    proc = run_benchmark("predict.py", str(copy), "--images", str(len(data.test)), "--repeat", "1",
                          "--threads", "1")
     assert proc.returncode == 0, proc.stderr
     rows = dict(re.findall(r"^  (\S.*?) +[\d.]+ s \(.* PSNR ([\d.]+) ", proc.stdout, re.MULTILINE))
@@ -278,25 +288,20 @@ def test_the_prediction_benchmark_scores_every_way(run, data):
                          "bf16, default layout"}
     assert float(rows["float32"]) == pytest.approx(metrics["psnr"], abs=1e-4)
     assert float(rows["float32, default layout"]) == pytest.approx(metrics["psnr"], abs=1e-4)
-    assert rows["float32, subnormals kept"] == rows["float32"]
+    assert float(rows["float32, subnormals kept"]) == pytest.approx(metrics["psnr"], abs=1e-4)
     assert abs(float(rows["bf16"]) - float(rows["float32"])) < 0.5
     levels = r"[\d.]+; \|difference\| mean ([\d.e+-]+), max ([\d.e+-]+) 8-bit levels"
     assert re.search(rf"bf16 / float32 time: {levels}", proc.stdout)
     layouts = re.search(rf"channels-last / default layout time, float32: {levels}", proc.stdout)
     assert layouts and float(layouts[2]) < 0.01
     zeroed = re.search(rf"subnormals zeroed / kept time, float32: {levels}", proc.stdout)
-    assert zeroed and float(zeroed[2]) == 0
-    assert re.search(r"; \d+ of \d+ weights in model.pt subnormal", proc.stdout)
+    assert zeroed and float(zeroed[2]) < 0.01
+    assert re.search(r"; 300 of \d+ weights in model.pt subnormal", proc.stdout)
 
 
 def test_subnormal_weights_are_zeroed_when_trained_and_loaded(data, tmp_path):
     """A fitted or loaded network holds no subnormal weights (they slow a CPU's float32 multiplies
     several-fold); zeroing them leaves its predictions as they were."""
-    tiny = torch.finfo(torch.float32).tiny
-
-    def subnormal(model: torch.nn.Module) -> int:
-        return sum(int(((p.abs() < tiny) & (p != 0)).sum()) for p in model.parameters())
-
     def training_that_leaves_subnormals(step, *args, **kwargs):
         for _ in range(3):
             step(torch.arange(8))
@@ -308,29 +313,43 @@ def test_subnormal_weights_are_zeroed_when_trained_and_loaded(data, tmp_path):
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr("compensation.methods.compennet.train_loop", training_that_leaves_subnormals)
         method.fit(data, tiny_config(iters=3), progress=False)
-    assert subnormal(method.model) == 0
+    assert _count_subnormal(method.model.parameters()) == 0
     captures = data.test.captures
     with torch.no_grad():  # plant subnormal weights where the trained ones are smallest
         weight = method.model.conv4_s.weight
         smallest = weight.abs().flatten().argsort()[:500]
         weight.view(-1)[smallest] = torch.where(weight.view(-1)[smallest] < 0, -1e-40, 1e-40)
-    assert subnormal(method.model) == 500
+    assert _count_subnormal(method.model.parameters()) == 500
     planted = method.predict(captures, data.surface)
     method.save(tmp_path)
-    assert sum(int(((v.abs() < tiny) & (v != 0)).sum()) for v in load_state(tmp_path / "model.pt").values()) == 500
+    assert _count_subnormal(load_state(tmp_path / "model.pt").values()) == 500
     loaded = get_method("compennet").load(tmp_path, device="cpu")
-    assert subnormal(loaded.model) == 0
+    assert _count_subnormal(loaded.model.parameters()) == 0
     assert torch.equal(loaded.predict(captures, data.surface), planted)
 
 
-def test_prediction_layouts_agree(run, data):
+def test_prediction_layouts_agree(run, data, monkeypatch):
     """Prediction in the channels-last layout (procam's) equals the default layout's to float
-    rounding, and returns a tensor in the default layout."""
+    rounding, returns a tensor in the default layout and leaves the network in the layout it had,
+    also when the forward pass fails."""
     method, _ = load_run(run, device="cpu")
     fast = method.predict(data.test.captures, data.surface)
     method.layout = torch.contiguous_format
     torch.testing.assert_close(fast, method.predict(data.test.captures, data.surface), rtol=0, atol=1e-5)
-    assert fast.is_contiguous() and next(method.model.parameters()).is_contiguous()
+    assert fast.is_contiguous() and method.model.conv1.weight.is_contiguous()
+    method.layout = torch.channels_last
+    method.model.to(memory_format=torch.channels_last)  # as while training
+    method.predict(data.test.captures[:1], data.surface)
+    assert not method.model.conv1.weight.is_contiguous()
+    method.model.to(memory_format=torch.contiguous_format)
+
+    def failing(*args, **kwargs):
+        raise RuntimeError("out of memory")
+
+    monkeypatch.setattr(CompenNet, "forward", failing)
+    with pytest.raises(RuntimeError, match="out of memory"):
+        method.predict(data.test.captures[:1], data.surface)
+    assert method.model.conv1.weight.is_contiguous()
 
 
 @pytest.mark.parametrize("options, expected", [
@@ -360,8 +379,9 @@ def test_amp_warns_on_a_cpu_without_native_bf16(data, monkeypatch):
     method = get_method("compennet")(device="cpu")
     with pytest.warns(UserWarning, match=re.escape(f"{data.name}: amp computes in bf16, ") + expected):
         method.fit(data, tiny_config(iters=2, amp=True), progress=False)
-    with pytest.warns(UserWarning, match="compennet: amp computes in bf16, " + expected):
+    with pytest.warns(UserWarning, match="compennet: amp computes in bf16, " + expected) as warned:
         method.predict(data.test.captures[:1], data.surface)
+    assert warned[0].filename == __file__  # the caller's line, not the method's or torch's
     method.amp = False
     with warnings.catch_warnings():
         warnings.simplefilter("error")

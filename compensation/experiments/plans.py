@@ -285,7 +285,10 @@ def execute(plan: Plan, out: Path, data_root: Path, spec: FrameSpec, scoring: Sc
     """
     out, data_root = Path(out), Path(data_root)
     gpus = executor.gpus()
-    fits = Counter(fit_group(method) for method in {r.run: r.cfg.method for r in plan.runs}.values())
+    methods: dict[str, str] = {}  # run folder → the method of its first run, the one fitted there
+    for r in plan.runs:
+        methods.setdefault(r.run, r.cfg.method)
+    fits = Counter(fit_group(method) for method in methods.values())
     count = JobCount({"render": {"render": len(plan.setups)}, "fit": fits, "score": {"score": len(setups)}},
                      getattr(executor, "workers", 1), progress)
     count.report()

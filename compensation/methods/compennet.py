@@ -443,21 +443,24 @@ class CompenNetMethod(Method):
         self.amp = cfg.options.amp
         return fit_network(self.model, data, cfg, self.surface, progress, checkpoint)
 
-    @torch.no_grad()
     def predict(self, captures: torch.Tensor, surface: torch.Tensor, batch_size: int = 64) -> torch.Tensor:
+        """π†(x̃) for ``captures`` given the surface image, in :attr:`layout` under the precision of
+        :attr:`amp`; the network is left in the memory layout it had."""
         if self.model is None:
             raise ProcamError(f"{self.name}: predict called before fit or load")
-        layout = self.layout
+        layout, weight = self.layout, self.model.conv1.weight
+        before = (torch.channels_last if weight.is_contiguous(memory_format=torch.channels_last)
+                  and not weight.is_contiguous() else torch.contiguous_format)
         self.model.eval().to(memory_format=layout)
         try:
-            with computing_in(forward_dtype(self.device, self.amp, self.name), self.device):
+            with torch.no_grad(), computing_in(forward_dtype(self.device, self.amp, self.name), self.device):
                 features = (self.model.surface_features(surface.to(self.device, memory_format=layout))
                             if self.surface else None)
                 out = [self.model(captures[i:i + batch_size].to(self.device, memory_format=layout),
                                   features=features).float().cpu()
                        for i in range(0, captures.shape[0], batch_size)]
         finally:
-            self.model.to(memory_format=torch.contiguous_format)
+            self.model.to(memory_format=before)
         return torch.cat(out).contiguous()
 
     def adopt_options(self, recorded: dict) -> None:

@@ -40,8 +40,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from compensation.methods.base import (CHECKPOINT, FitResult, Method, load_state, load_weights,
-                                       resolve_device, save_state, weights_file)
+from compensation.methods.base import (CHECKPOINT, FitResult, Method, flush_denormals, load_state,
+                                       load_weights, resolve_device, save_state, weights_file)
 from compensation.training.config import MAX_ITERS, Options, TrainConfig
 from compensation.training.loop import fit_label, train_loop
 from sim.errors import ProcamError
@@ -433,6 +433,7 @@ class Pix2PixMethod(Method):
                             ("l1", "G GAN", "D"), fit_label(data.name, self.name, cfg.seed, len(data.train)), progress,
                             stateful, checkpoint, cfg.checkpoint_every)
         disc.requires_grad_(True)
+        flush_denormals(model)
         rows = result.values
         return FitResult(result.seconds, result.samples_per_second, result.final_loss, result.batch,
                          [(i + 1, r[0], opt.lr) for i, r in enumerate(rows)],
