@@ -2,8 +2,9 @@
 as validated setups (:func:`tiny_setup`) or as setup files (:func:`tiny_toml`,
 :func:`tiny_setup_file`), a study whose renders all fail (:func:`failing_study_file`), ``mi.render`` ended by Ctrl-C
 (:func:`interrupted_render`), the options of the tiny rendered dataset (:data:`TINY_RENDER`),
-the rows of the CSV files procam writes (:func:`csv_rows`), and a script of ``benchmarks/`` run in
-a child process (:func:`run_benchmark`)."""
+the rows of the CSV files procam writes (:func:`csv_rows`), a script of ``benchmarks/`` run in
+a child process (:func:`run_benchmark`), and a job that waits in a worker process
+(:func:`record_pid_and_wait`)."""
 from __future__ import annotations
 
 import copy
@@ -11,6 +12,7 @@ import csv
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import tomli_w
@@ -126,3 +128,11 @@ def run_benchmark(script: str, *args: str, cwd: Path | None = None) -> subproces
     env = dict(os.environ, PYTHONPATH=str(BENCHMARKS.parent), OMP_WAIT_POLICY="PASSIVE")
     return subprocess.run([sys.executable, str(BENCHMARKS / script), *args], capture_output=True,
                           text=True, timeout=600, env=env, cwd=cwd or BENCHMARKS.parent)
+
+
+def record_pid_and_wait(folder: str) -> dict:
+    """A job for a worker process: writes ``pid-<its process id>`` into ``folder``, then waits a
+    minute (long past any test's patience) and returns nothing of note."""
+    (Path(folder) / f"pid-{os.getpid()}").touch()
+    time.sleep(60)
+    return {}

@@ -3,6 +3,11 @@ gives the local executor's numbers, table for table."""
 from __future__ import annotations
 
 import csv
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -36,6 +41,40 @@ def test_attempt_and_local_executor():
     done = LocalExecutor().run([Task(dict.fromkeys, ("a", "b")), Task(int, "x")])
     assert done[0] == {"ok": True, "a": None, "b": None}
     assert not done[1]["ok"] and done[1]["error"].startswith("ValueError: invalid literal")
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` exists and has not exited (a zombie no one reaped has)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(") ")[-1][0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
+def test_worker_processes_end_with_a_stopped_run(tmp_path):
+    """A study or bench stopped by a signal while its worker processes run jobs leaves none of
+    them running on (they would write into the folder the next run resumes)."""
+    script = ("from compensation.experiments.executors import LocalExecutor, Task\n"
+              "from helpers import record_pid_and_wait\n"
+              f"LocalExecutor(2).run([Task(record_pid_and_wait, {str(tmp_path)!r})] * 2)\n")
+    tests = str(Path(__file__).parent)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [tests, os.environ.get("PYTHONPATH")])))
+    main = subprocess.Popen([sys.executable, "-c", script], env=env)
+    try:
+        deadline = time.monotonic() + 120
+        while len(pids := [int(p.name[4:]) for p in tmp_path.glob("pid-*")]) < 2:
+            assert main.poll() is None and time.monotonic() < deadline, "the workers did not start"
+            time.sleep(0.1)
+        assert all(_running(pid) for pid in pids)
+        main.send_signal(signal.SIGTERM)
+        main.wait(30)
+        deadline = time.monotonic() + 20
+        while any(_running(pid) for pid in pids):
+            assert time.monotonic() < deadline, f"worker processes {pids} still run their jobs"
+            time.sleep(0.1)
+    finally:
+        main.kill()
 
 
 def test_executor_options_are_checked():

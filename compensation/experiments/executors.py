@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import socket
+import threading
 import time
 import traceback
 from collections.abc import Callable, Sequence
@@ -80,6 +81,23 @@ def timed(fn: Callable, job) -> tuple[dict, float]:
     return record, time.perf_counter() - t0
 
 
+def end_with(parent: int, poll: float = 1.0) -> None:
+    """A worker process's initializer: a daemon thread ends this process (exit status 1) once
+    ``parent``, the process that started its pool, is gone, checked every ``poll`` seconds.
+
+    A stopped study or bench (Ctrl-C, ``kill``, a lost terminal) ends with its main process; the
+    pool's workers would otherwise run their jobs on, unseen, and write files into a folder the
+    next run resumes. A job a worker did not finish leaves no record, so the next run does it
+    again.
+    """
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
+
+
 DoneCallback = Callable[[int, dict, float], None]
 """``on_done(index, record, seconds)``: called by an executor's ``run`` in this process as each
 task finishes, with the task's index in the list given, its :func:`attempt` record and its wall
@@ -87,7 +105,8 @@ time."""
 
 
 class LocalExecutor:
-    """Jobs in this process, in order (``workers`` 1), or in a pool of ``workers`` processes.
+    """Jobs in this process, in order (``workers`` 1), or in a pool of ``workers`` processes that
+    end with this one (:func:`end_with`).
 
     Parameters
     ----------
@@ -117,7 +136,8 @@ class LocalExecutor:
                 finished(i, *timed(t.fn, t.job))
             return records
         # spawn: a fresh interpreter per worker (no forked torch or Mitsuba thread state)
-        with ProcessPoolExecutor(min(self.workers, len(tasks)), mp_context=get_context("spawn")) as pool:
+        with ProcessPoolExecutor(min(self.workers, len(tasks)), mp_context=get_context("spawn"),
+                                 initializer=end_with, initargs=(os.getpid(),)) as pool:
             futures = {pool.submit(timed, t.fn, t.job): i for i, t in enumerate(tasks)}
             for future in as_completed(futures):
                 finished(futures[future], *future.result())
