@@ -85,7 +85,8 @@ def end_with(parent: int, poll: float = 1.0) -> None:
     """A worker process's initializer: a daemon thread ends this process (exit status 1) once
     ``parent``, the process that started its pool, is gone, checked every ``poll`` seconds.
 
-    A stopped study or bench (Ctrl-C, ``kill``, a lost terminal) ends with its main process; the
+    A study or bench stopped by a signal to its main process alone (``kill``, a scheduler's time
+    limit; Ctrl-C in a terminal reaches the workers too) ends with its main process; the
     pool's workers would otherwise run their jobs on, unseen, and write files into a folder the
     next run resumes. A job a worker did not finish leaves no record, so the next run does it
     again.
