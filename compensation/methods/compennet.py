@@ -109,7 +109,7 @@ def sum_over_batch(t: Tensor) -> Tensor:
     True
     """
     n, c, h, w = t.shape
-    if t.is_contiguous(memory_format=torch.channels_last) and not t.is_contiguous():
+    if _in_channels_last(t):
         return t.permute(0, 2, 3, 1).reshape(n, -1).sum(0).view(1, h, w, c).permute(0, 3, 1, 2)
     return t.reshape(n, -1).sum(0).view(1, c, h, w)
 
@@ -448,9 +448,9 @@ class CompenNetMethod(Method):
         :attr:`amp`; the network is left in the memory layout it had."""
         if self.model is None:
             raise ProcamError(f"{self.name}: predict called before fit or load")
-        layout, weight = self.layout, self.model.conv1.weight
-        before = (torch.channels_last if weight.is_contiguous(memory_format=torch.channels_last)
-                  and not weight.is_contiguous() else torch.contiguous_format)
+        layout = self.layout
+        was_channels_last = _in_channels_last(self.model.conv1.weight)
+        before = torch.channels_last if was_channels_last else torch.contiguous_format
         self.model.eval().to(memory_format=layout)
         try:
             with torch.no_grad(), computing_in(forward_dtype(self.device, self.amp, self.name), self.device):
@@ -644,3 +644,13 @@ def _scheduler(optimizer: torch.optim.Optimizer,
 def _channels_last(images: torch.Tensor) -> torch.Tensor:
     """``images`` (N, C, H, W) in the channels-last memory layout (no copy if already so)."""
     return images.contiguous(memory_format=torch.channels_last)
+
+
+def _in_channels_last(t: torch.Tensor) -> bool:
+    """Whether the 4-D ``t`` is laid out channels-last (and not also in the default layout, as a
+    tensor of one channel or one pixel is).
+
+    >>> _in_channels_last(_channels_last(torch.zeros(2, 3, 4, 5))), _in_channels_last(torch.zeros(2, 3, 4, 5))
+    (True, False)
+    """
+    return t.is_contiguous(memory_format=torch.channels_last) and not t.is_contiguous()
