@@ -14,7 +14,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import pytest
 
-from helpers import csv_rows, refuse_renders, tiny_toml
+from helpers import csv_rows, refuse_renders, run_benchmark, tiny_toml
 from compensation.cli import main
 from compensation.experiments.jobs import RESULT_COLUMNS, run_status
 from compensation.reports.summary import STATUSES
@@ -304,6 +304,35 @@ def test_study_folder(tiny):
              for r in rows}
     # 5x the radiance, sRGB-encoded (the projector's black level adds to both): measured 2.9x
     assert black["0.1"].mean() > 2 * black["0.02"].mean()
+
+
+@pytest.mark.slow
+def test_attribution_mixes_the_points_stages_and_reproduces_the_study_at_its_corners(tiny, tmp_path):
+    """benchmarks/attribute.py: the study's own scores where fit, target and camera come from one
+    point; the room light reaches the closed loop through the camera stage."""
+    table = tmp_path / "attribution.csv"
+    proc = run_benchmark("attribute.py", str(tiny / "out"), "--points", "0,1", "--methods", "tps,nayar",
+                         "--csv", str(table))
+    assert proc.returncode == 0, proc.stderr
+    rows = csv_rows(table)
+    study = {(r["point"], r["method"]): float(r["cl_psnr"]) for r in csv_rows(tiny / "out" / "results.csv")}
+    assert sorted((r["method"], r["fit"], r["target"], r["camera"]) for r in rows) == sorted(
+        (m, f, t, c) for m in ("tps", "nayar") for f in "01" for t in "01" for c in "01")
+    score = {(r["method"], r["fit"], r["target"], r["camera"]): float(r["cl_psnr"]) for r in rows}
+    for (method, fit, target, camera), psnr in score.items():
+        if fit == target == camera:
+            assert psnr == pytest.approx(study[(fit, method)], rel=1e-5)
+        else:
+            assert math.isfinite(psnr)
+    # point 1 has 5x the room light: a fit learns its point's room light and takes it away, so a
+    # compensation comes out too bright under the other point's camera or too dark
+    for method in ("tps", "nayar"):
+        for fit, other in ("01", "10"):
+            for target in "01":
+                assert score[(method, fit, target, other)] < score[(method, fit, target, fit)] - 1, score
+    assert "main effects" in proc.stdout
+    bad = run_benchmark("attribute.py", str(tiny / "out"), "--points", "0,7", "--methods", "tps")
+    assert bad.returncode == 1 and "no finished run of point 7" in bad.stderr and "Traceback" not in bad.stderr
 
 
 @pytest.mark.slow

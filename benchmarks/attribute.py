@@ -1,0 +1,152 @@
+"""Which stage of the closed loop explains a method's score change between two points of a study.
+
+A closed-loop score at a point has three sources, each made by that point's setup: the method's
+fit (the training pairs it learnt from), the target y' (fitted to the point's black and white
+captures under the study's target policy) and the camera that captures the projected
+compensation (its noise, its room light). This script scores every mix of the two points A and B,
+2³ closed loops per method and seed, each exactly as the study scores its runs (the run as
+saved, the study's target policy, the point's test pairs and simulator), and prints the table and
+each stage's main effect: the mean change of the closed-loop PSNR when that stage alone is taken
+from B instead of A, over the four settings of the other two. The corners (A, A, A) and
+(B, B, B) are the study's own scores.
+
+    .venv/bin/python benchmarks/attribute.py STUDY --points A,B [--methods tps,compennet]
+                                             [--seed 0] [--csv FILE]
+
+STUDY is a finished ``procam study`` folder; A and B are point numbers of its ``results.csv``.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import itertools
+import sys
+from pathlib import Path
+
+import torch
+
+from compensation.data import load_setup_data
+from compensation.experiments.closed_loop import closed_loop, simulator_for
+from compensation.experiments.runs import load_run
+from compensation.experiments.targets import TargetPolicy
+from sim.errors import ProcamError
+from sim.io import atomic_write, read_json
+
+STAGES = ("fit", "target", "camera")
+"""The stages taken from one point or the other, in the order of a table row's key."""
+
+
+def _results(study: Path) -> list[dict]:
+    path = study / "results.csv"
+    if not path.exists():
+        raise ProcamError(f"{path}: not found; expected a finished procam study folder")
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _row(rows: list[dict], point: str, method: str, seed: str, study: Path) -> dict:
+    found = [r for r in rows if (r["point"], r["method"], r["seed"]) == (point, method, seed)
+             and r["status"] == "ok"]
+    if not found:
+        raise ProcamError(f"{study / 'results.csv'}: no finished run of point {point}, method {method!r}, "
+                          f"seed {seed}; expected one of the points "
+                          f"{', '.join(sorted({r['point'] for r in rows}, key=int))}")
+    return found[0]
+
+
+def attribute(study: Path, points: tuple[str, str], methods: list[str], seed: int = 0) -> list[dict]:
+    """The closed-loop scores of every mix of the two points' stages.
+
+    Returns
+    -------
+    list of dict
+        One per method and mix: ``method``, ``fit``, ``target``, ``camera`` (each the point it was
+        taken from), ``cl_psnr``, ``cl_ssim``, ``cl_deltae`` and ``study_cl_psnr`` (the study's
+        own score where the three stages come from one point, else empty).
+    """
+    rows = _results(study)
+    data, sims = {}, {}
+    out = []
+    for method in methods:
+        picked = {p: _row(rows, p, method, str(seed), study) for p in points}
+        policy = {p: TargetPolicy(r["target_policy"], float(r["target_out_of_reach"])) for p, r in picked.items()}
+        if policy[points[0]] != policy[points[1]]:
+            raise ProcamError(f"{study}: points {points[0]} and {points[1]} were scored under different "
+                              "target policies; expected one")
+        fitted = {p: load_run(study / r["run"])[0] for p, r in picked.items()}
+        for p, r in picked.items():
+            if p not in data:
+                setup_dir = study / "data" / r["setup"]
+                n_test = read_json(study / r["run"] / "metrics.json", "run metrics")["n_test"]
+                data[p] = load_setup_data(setup_dir, n_train=1, n_test=n_test)
+                sims[p] = simulator_for(setup_dir)
+        for fit, target, camera in itertools.product(points, repeat=3):
+            scores = closed_loop(fitted[fit], data[target], sims[camera], policy=policy[target])
+            own = fit == target == camera
+            out.append({"method": method, "fit": fit, "target": target, "camera": camera,
+                        "cl_psnr": scores["psnr"], "cl_ssim": scores["ssim"], "cl_deltae": scores["deltaE"],
+                        "study_cl_psnr": float(picked[fit]["cl_psnr"]) if own else ""})
+    return out
+
+
+def main_effects(table: list[dict], points: tuple[str, str]) -> dict[str, dict[str, float]]:
+    """Per method, each stage's main effect on the closed-loop PSNR (dB): the mean over the other
+    stages' four settings of the score with the stage from B minus with it from A.
+
+    >>> t = [{"method": "m", "fit": f, "target": g, "camera": c, "cl_psnr": 30 - (f == "B") - 2 * (c == "B")}
+    ...      for f, g, c in itertools.product("AB", repeat=3)]
+    >>> main_effects(t, ("A", "B"))
+    {'m': {'fit': -1.0, 'target': 0.0, 'camera': -2.0}}
+    """
+    effects: dict[str, dict[str, float]] = {}
+    for method in dict.fromkeys(r["method"] for r in table):
+        mine = [r for r in table if r["method"] == method]
+        effects[method] = {
+            stage: sum(r["cl_psnr"] * (1 if r[stage] == points[1] else -1) for r in mine) / (len(mine) / 2)
+            for stage in STAGES}
+    return effects
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("study", type=Path, help="a finished procam study folder")
+    ap.add_argument("--points", required=True, help="two point numbers of its results.csv, A,B")
+    ap.add_argument("--methods", default="tps,nayar,compennet")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--csv", type=Path, help="also write the table here")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads")
+    args = ap.parse_args(argv)
+    points = tuple(p.strip() for p in args.points.split(","))
+    if len(points) != 2 or points[0] == points[1]:
+        print(f"attribute.py: --points {args.points!r}: expected two different point numbers, A,B",
+              file=sys.stderr)
+        return 2
+    torch.set_num_threads(args.threads)
+    try:
+        table = attribute(args.study, points, args.methods.split(","), args.seed)
+    except ProcamError as exc:
+        print(f"attribute.py: {exc}", file=sys.stderr)
+        return 1
+    a, b = points
+    print(f"closed-loop PSNR (dB) of {args.study}, seed {args.seed}: each stage from point {a} or {b}")
+    print(f"{'method':12s} {'fit':>4s} {'target':>7s} {'camera':>7s} {'cl_psnr':>8s} {'study':>8s}")
+    for r in table:
+        study = f"{r['study_cl_psnr']:.3f}" if r["study_cl_psnr"] != "" else ""
+        print(f"{r['method']:12s} {r['fit']:>4s} {r['target']:>7s} {r['camera']:>7s} {r['cl_psnr']:8.3f} {study:>8s}")
+    print(f"main effects, dB (the stage from point {b} instead of {a}, mean over the other stages):")
+    for method, effects in main_effects(table, points).items():
+        total = next(r["cl_psnr"] for r in table if r["method"] == method and r["fit"] == r["target"] == r["camera"] == b) \
+            - next(r["cl_psnr"] for r in table if r["method"] == method and r["fit"] == r["target"] == r["camera"] == a)
+        print(f"  {method:12s} " + "  ".join(f"{s} {v:+.2f}" for s, v in effects.items()) + f"  (all three {total:+.2f})")
+    if args.csv:
+        text = io.StringIO()
+        w = csv.DictWriter(text, fieldnames=list(table[0]), lineterminator="\n")
+        w.writeheader()
+        w.writerows(table)
+        atomic_write(args.csv, text.getvalue())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
