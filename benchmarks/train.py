@@ -25,6 +25,9 @@ off, taking turns, per size: the A/B behind :data:`~compensation.training.conv_g
 With ``--amp-ab``, procam's step in float32 against the same step with its forward pass under
 bf16 autocast (``procam train --amp``), taking turns, per size, and the loss of each after the same
 steps from the same start.
+With ``--bf16-shapes``, instead of all that: procam's bf16 step at each size and batch given, the
+shapes taking turns, in 64²-window samples per second (the rate a budget of window samples, the
+`faithful` profile's, is trained at).
 
 Then, with ``--data``, the `quick` profile's training time and test PSNR/SSIM on the default setup.
 
@@ -34,7 +37,7 @@ its page faults, which varies from process to process (±15 % between runs at 12
 
     .venv/bin/python benchmarks/train.py [--sizes 128,256] [--batches 16,8] [--rounds 7] [--runs K]
                                          [--threads N] [--pause S] [--compile] [--nchw-ab]
-                                         [--amp-ab]
+                                         [--amp-ab] [--bf16-shapes]
                                          [--data out/data]
 """
 from __future__ import annotations
@@ -153,6 +156,9 @@ def main() -> None:
                     "weight gradients on against off, whatever this CPU's rule")
     ap.add_argument("--amp-ab", action="store_true", help="also time procam's step in float32 "
                     "against bf16 autocast (--amp)")
+    ap.add_argument("--bf16-shapes", action="store_true", help="instead: procam's bf16 step (the "
+                    "faithful profile's) at every size and batch given, the shapes taking turns, in "
+                    "64²-window samples/s (pixels per second over 64²)")
     ap.add_argument("--data", default=None, help="a dataset root with default/ rendered at the quick "
                     "profile (e.g. the demo's out/data): also time the quick profile on it")
     args = ap.parse_args()
@@ -160,6 +166,20 @@ def main() -> None:
     sizes = [int(v) for v in args.sizes.split(",")]
     batches = [int(v) for v in args.batches.split(",")]
     threads = args.threads or torch.get_num_threads()
+    shapes = list(zip(sizes, batches * len(sizes) if len(batches) == 1 else batches))
+    if args.bf16_shapes:
+        print(f"torch {torch.__version__}, {threads} threads, load average before {os.getloadavg()[0]:.1f}; "
+              f"procam's step under bf16 autocast, median of {args.rounds} interleaved steps "
+              f"(bf16 natively: {native_bf16()})")
+        seconds = interleaved({f"{size}x{batch}": (build_step, ("retained heap", size, batch, args.threads,
+                                                                 None, True), True)
+                               for size, batch in shapes}, args.rounds, args.pause)
+        for size, batch in shapes:
+            step = statistics.median(seconds[f"{size}x{batch}"])
+            print(f"  {size}², batch {batch}: {1000 * step:.1f} ms a step, "
+                  f"{batch * (size / 64) ** 2 / step:.1f} 64²-window samples/s", flush=True)
+        print(f"load average after {os.getloadavg()[0]:.1f}")
+        return
     print(f"torch {torch.__version__}, {threads} threads, {os.cpu_count()} CPUs, "
           f"load average before {os.getloadavg()[0]:.1f}; samples/s (× naive), median of "
           f"{args.rounds} interleaved steps; conv backward: transposed as strided, "
@@ -171,7 +191,6 @@ def main() -> None:
         cells = [f"{rates[n]:.2f} ({ratios[n]:.2f}×)" for n in steps]
         print(f"{label:>11}" + "".join(f"{c:>20}" for c in cells), flush=True)
 
-    shapes = list(zip(sizes, batches * len(sizes) if len(batches) == 1 else batches))
     for size, batch in shapes:
         runs = []
         for _ in range(args.runs):

@@ -66,6 +66,20 @@ def test_train_benchmark_runs_every_step(monkeypatch):
     assert loss_full > 0 and math.isclose(loss_half, loss_full, rel_tol=0.05) and loss_half != loss_full
 
 
+@pytest.mark.slow
+def test_bf16_shapes_give_each_shapes_rate_in_window_samples():
+    """--bf16-shapes: one line per shape and nothing of the full table; the rate is the batch's
+    pixels in 64² windows over the step's time printed beside it."""
+    out = output("train.py", "--sizes", "16,32", "--batches", "4,2", "--rounds", "1", "--threads", "1",
+                 "--bf16-shapes")
+    assert "naive" not in out
+    found = re.findall(r"^  (\d+)², batch (\d+): ([\d.]+) ms a step, ([\d.]+) 64²-window samples/s$", out, flags=re.M)
+    assert [(size, batch) for size, batch, _, _ in found] == [("16", "4"), ("32", "2")], out
+    for size, batch, ms, rate in found:
+        expected = int(batch) * (int(size) / 64) ** 2 / (float(ms) / 1000)
+        assert float(ms) > 0 and math.isclose(float(rate), expected, rel_tol=0.01, abs_tol=0.06)
+
+
 def test_procams_step_keeps_its_layers_changed(monkeypatch):
     """The benchmark's last step is the training loop's: the backward replacements stay in force
     for the step's lifetime (a context left to the garbage collector would undo them)."""
