@@ -40,16 +40,18 @@ def _serve(conn, build: Callable[..., Callable[[], object]], args: tuple, heap: 
             conn.send(time.perf_counter() - start)
 
 
-def interleaved(steps: dict[str, tuple[Callable[..., Callable[[], object]], tuple, bool]], rounds: int,
-                pause: float = 0.05) -> dict[str, list[float]]:
+def interleaved(steps: dict[str, tuple], rounds: int, pause: float = 0.05) -> dict[str, list[float]]:
     """Seconds of each call of each step, the steps taking turns for ``rounds`` rounds.
 
     Parameters
     ----------
     steps : dict
-        Name → (``build``, ``args``, ``heap``): ``build(*args)`` returns the step (a callable of no
-        argument), built in the step's own process (so ``build`` must be importable: a module-level
-        function); with ``heap`` the step runs inside :func:`sim.heap.retained_heap`.
+        Name → (``build``, ``args``, ``heap``) or (``build``, ``args``, ``heap``, ``copies``):
+        ``build(*args)`` returns the step (a callable of no argument), built in the step's own
+        process (so ``build`` must be importable: a module-level function); with ``heap`` the step
+        runs inside :func:`sim.heap.retained_heap`. With ``copies`` > 1 that many processes of the
+        step are called at once, and a call's seconds are the mean of theirs (each copy's own
+        time, the others computing beside it: what jobs running side by side each take a step).
     rounds : int
         Timed calls of each step.
     pause : float
@@ -59,26 +61,31 @@ def interleaved(steps: dict[str, tuple[Callable[..., Callable[[], object]], tupl
     # before the server starts (the first call's setting holds); torch's optimisers import
     # torch._dynamo on their first construction, 1.6 s of a step's start
     forks.set_forkserver_preload(["__main__", "torch._dynamo"])
-    workers = {}
+    workers: dict[str, list] = {}
     try:
-        for name, (build, args, heap) in steps.items():
-            here, there = forks.Pipe()
-            proc = forks.Process(target=_serve, args=(there, build, args, heap), daemon=True)
-            proc.start()
-            workers[name] = (proc, here)
-        for name, (_, conn) in workers.items():
-            if (failed := conn.recv()) is not None:
-                raise SystemExit(f"benchmark step {name!r} failed: {failed}")
+        for name, (build, args, heap, *copies) in steps.items():
+            workers[name] = []
+            for _ in range(copies[0] if copies else 1):
+                here, there = forks.Pipe()
+                proc = forks.Process(target=_serve, args=(there, build, args, heap), daemon=True)
+                proc.start()
+                workers[name].append((proc, here))
+        for name, copies in workers.items():
+            for _, conn in copies:
+                if (failed := conn.recv()) is not None:
+                    raise SystemExit(f"benchmark step {name!r} failed: {failed}")
         seconds = {name: [] for name in steps}
         for _ in range(rounds):
-            for name, (_, conn) in workers.items():
+            for name, copies in workers.items():
                 time.sleep(pause)
-                conn.send(True)
-                seconds[name].append(conn.recv())
-        for _, conn in workers.values():
-            conn.send(False)
+                for _, conn in copies:
+                    conn.send(True)
+                seconds[name].append(sum(conn.recv() for _, conn in copies) / len(copies))
+        for copies in workers.values():
+            for _, conn in copies:
+                conn.send(False)
     finally:
-        for proc, _ in workers.values():
+        for proc, _ in (w for copies in workers.values() for w in copies):
             proc.join(timeout=30)
             if proc.is_alive():
                 proc.terminate()

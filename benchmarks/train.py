@@ -25,6 +25,9 @@ off, taking turns, per size: the A/B behind :data:`~compensation.training.conv_g
 With ``--amp-ab``, procam's step in float32 against the same step with its forward pass under
 bf16 autocast (``procam train --amp``), taking turns, per size, and the loss of each after the same
 steps from the same start.
+With ``--concurrent``, procam's step as one process of all the threads against one process of one
+thread per CPU, all stepping at once: what a bench or study gains by running its jobs side by
+side (``--processes``) rather than one after the other.
 With ``--bf16-shapes``, instead of all that: procam's bf16 step at each size and batch given, the
 shapes taking turns, in 64²-window samples per second (the rate a budget of window samples, the
 `faithful` profile's, is trained at).
@@ -37,7 +40,7 @@ its page faults, which varies from process to process (±15 % between runs at 12
 
     .venv/bin/python benchmarks/train.py [--sizes 128,256] [--batches 16,8] [--rounds 7] [--runs K]
                                          [--threads N] [--pause S] [--compile] [--nchw-ab]
-                                         [--amp-ab] [--bf16-shapes]
+                                         [--amp-ab] [--concurrent] [--bf16-shapes]
                                          [--data out/data]
 """
 from __future__ import annotations
@@ -159,6 +162,9 @@ def main() -> None:
     ap.add_argument("--bf16-shapes", action="store_true", help="instead: procam's bf16 step (the "
                     "faithful profile's) at every size and batch given, the shapes taking turns, in "
                     "64²-window samples/s (pixels per second over 64²)")
+    ap.add_argument("--concurrent", action="store_true", help="also time procam's step (bf16 where "
+                    "this CPU has it natively) as one process of all the threads against one process "
+                    "of one thread per CPU, all stepping at once: the throughput of jobs run side by side")
     ap.add_argument("--data", default=None, help="a dataset root with default/ rendered at the quick "
                     "profile (e.g. the demo's out/data): also time the quick profile on it")
     args = ap.parse_args()
@@ -219,6 +225,19 @@ def main() -> None:
             print(f"  {size}², batch {batch}: float32 {rates['float32']:.2f}, bf16 {rates['bf16']:.2f}, "
                   f"bf16/float32 {rates['bf16'] / rates['float32']:.2f}×; loss {losses['float32']:.6f} "
                   f"against {losses['bf16']:.6f}", flush=True)
+    if args.concurrent:
+        amp, cpus = native_bf16(), os.cpu_count()
+        print(f"procam's step in {'bf16' if amp else 'float32'}, one process of {threads} threads against "
+              f"{cpus} processes of one thread stepping at once (samples/s of all of them, median of "
+              f"{args.rounds} rounds of their mean step time):")
+        for size, batch in shapes:
+            seconds = interleaved({"one": (build_step, ("retained heap", size, batch, threads, None, amp), True),
+                                   "each": (build_step, ("retained heap", size, batch, 1, None, amp), True, cpus)},
+                                  args.rounds, args.pause)
+            one = batch / statistics.median(seconds["one"])
+            each = cpus * batch / statistics.median(seconds["each"])
+            print(f"  {size}², batch {batch}: one process {one:.2f}, {cpus} processes {each:.2f}, "
+                  f"{each / one:.2f}×", flush=True)
     print(f"load average after {os.getloadavg()[0]:.1f}")
     if args.data:
         import tempfile

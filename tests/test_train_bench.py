@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import gc
 import math
+import os
 import re
 import statistics
 
@@ -35,7 +36,7 @@ def test_train_benchmark_runs_every_step(monkeypatch):
     import train
 
     out = output("train.py", "--sizes", "16", "--batches", "2", "--rounds", "1", "--runs", "2",
-                 "--threads", "1", "--nchw-ab", "--amp-ab")
+                 "--threads", "1", "--nchw-ab", "--amp-ab", "--concurrent")
     lines = out.splitlines()
     header = lines[1]
     assert header[:11].split() == ["size", "batch"]
@@ -64,6 +65,11 @@ def test_train_benchmark_runs_every_step(monkeypatch):
     assert full > 0 and half > 0 and math.isclose(ratio, half / full, rel_tol=0.01, abs_tol=0.006)
     # the same steps from the same start: bf16 rounding apart, the same loss
     assert loss_full > 0 and math.isclose(loss_half, loss_full, rel_tol=0.05) and loss_half != loss_full
+    side = re.findall(r"^  16², batch 2: one process ([\d.]+), (\d+) processes ([\d.]+), ([\d.]+)×$", out, flags=re.M)
+    assert len(side) == 1, out
+    one, cpus, each, ratio = float(side[0][0]), int(side[0][1]), float(side[0][2]), float(side[0][3])
+    assert cpus == os.cpu_count() and one > 0 and each > 0
+    assert math.isclose(ratio, each / one, rel_tol=0.01, abs_tol=0.006)
 
 
 @pytest.mark.slow
