@@ -37,20 +37,30 @@ STAGES = ("fit", "target", "camera")
 """The stages taken from one point or the other, in the order of a table row's key."""
 
 
+COLUMNS = ("point", "setup", "method", "seed", "status", "run", "cl_psnr", "target_policy",
+           "target_out_of_reach")
+"""The ``results.csv`` columns read."""
+
+
 def _results(study: Path) -> list[dict]:
     path = study / "results.csv"
     if not path.exists():
         raise ProcamError(f"{path}: not found; expected a finished procam study folder")
     with open(path, newline="") as f:
-        return list(csv.DictReader(f))
+        reader = csv.DictReader(f)
+        missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise ProcamError(f"{path}: no column {', '.join(missing)}; expected the results.csv of "
+                              "procam study")
+        return list(reader)
 
 
 def _row(rows: list[dict], point: str, method: str, seed: str, study: Path) -> dict:
     found = [r for r in rows if (r["point"], r["method"], r["seed"]) == (point, method, seed)
-             and r["status"] == "ok"]
+             and r["status"] == "ok" and r["cl_psnr"] and r["target_policy"]]
     if not found:
         raise ProcamError(f"{study / 'results.csv'}: no finished run of point {point}, method {method!r}, "
-                          f"seed {seed}; expected one of the points "
+                          f"seed {seed} scored in closed loop; expected one of the points "
                           f"{', '.join(sorted({r['point'] for r in rows}, key=int))}")
     return found[0]
 
