@@ -414,7 +414,8 @@ def _executor_options(p: argparse.ArgumentParser) -> None:
                    help="Ray cluster to join: 'auto' (the one `ray start --head` runs here) or "
                         "ray://HOST:10001; default: a Ray instance started for this command")
     g.add_argument("--processes", type=_positive, default=1,
-                   help="local executor: worker processes running jobs side by side (default 1)")
+                   help="local executor: worker processes running jobs side by side (default 1), each "
+                   "computing on its share of the cores unless OMP_NUM_THREADS is set")
 
 
 def _executor(args: argparse.Namespace):

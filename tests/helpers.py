@@ -136,3 +136,10 @@ def record_pid_and_wait(folder: str) -> dict:
     (Path(folder) / f"pid-{os.getpid()}").touch()
     time.sleep(60)
     return {}
+
+
+def compute_threads(_: object) -> dict:
+    """A job for a worker process: the threads it computes with (torch's, and OMP_NUM_THREADS)."""
+    import torch
+
+    return {"torch": torch.get_num_threads(), "omp": os.environ.get("OMP_NUM_THREADS")}

@@ -17,6 +17,7 @@ from compensation.experiments import executors
 from compensation.experiments.bench import BenchConfig, run_bench
 from compensation.experiments.executors import LocalExecutor, Task, attempt, make_executor
 from compensation.reports.tables import write_tables
+from sim.cores import usable_cores
 from sim.errors import ProcamError
 from sim.setup import load_suite
 
@@ -75,6 +76,30 @@ def test_worker_processes_end_with_a_stopped_run(tmp_path):
             time.sleep(0.1)
     finally:
         main.kill()
+
+
+@pytest.mark.parametrize("given", [None, "3"])
+def test_pool_workers_share_the_cores_unless_told(given, monkeypatch):
+    """--processes N: each worker computes on its share of the cores (one thread each on 2 cores
+    with 2 workers), and an OMP_NUM_THREADS the user set is kept."""
+    if given is None:
+        monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    else:
+        monkeypatch.setenv("OMP_NUM_THREADS", given)
+    monkeypatch.syspath_prepend(str(Path(__file__).parent))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(Path(__file__).parent),
+                                                                    os.environ.get("PYTHONPATH")])))
+    from helpers import compute_threads
+
+    records = LocalExecutor(2).run([Task(compute_threads, None)] * 2)
+    if given is None:
+        share = max(1, usable_cores() // 2)
+        expected = {"torch": share, "omp": str(share)}
+    else:  # as a process started with it computes
+        alone = subprocess.run([sys.executable, "-c", "import torch; print(torch.get_num_threads())"],
+                               capture_output=True, text=True, check=True)
+        expected = {"torch": int(alone.stdout), "omp": given}
+    assert records == [{"ok": True, **expected}] * 2, records
 
 
 def test_executor_options_are_checked():
