@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import tiny_toml
+from helpers import compute_threads, tiny_toml
 from compensation.experiments import executors
 from compensation.experiments.bench import BenchConfig, run_bench
 from compensation.experiments.executors import LocalExecutor, Task, attempt, make_executor
@@ -86,11 +86,8 @@ def test_pool_workers_share_the_cores_unless_told(given, monkeypatch):
         monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     else:
         monkeypatch.setenv("OMP_NUM_THREADS", given)
-    monkeypatch.syspath_prepend(str(Path(__file__).parent))
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(Path(__file__).parent),
                                                                     os.environ.get("PYTHONPATH")])))
-    from helpers import compute_threads
-
     records = LocalExecutor(2).run([Task(compute_threads, None)] * 2)
     if given is None:
         share = max(1, usable_cores() // 2)
