@@ -11,7 +11,7 @@ from B instead of A, over the four settings of the other two. The corners (A, A,
 (B, B, B) are the study's own scores.
 
     .venv/bin/python benchmarks/attribute.py STUDY --points A,B [--methods tps,compennet]
-                                             [--seed 0] [--csv FILE]
+                                             [--seed 0] [--setup NAME] [--csv FILE]
 
 STUDY is a finished ``procam study`` folder; A and B are point numbers of its ``results.csv``.
 """
@@ -55,18 +55,25 @@ def _results(study: Path) -> list[dict]:
         return list(reader)
 
 
-def _row(rows: list[dict], point: str, method: str, seed: str, study: Path) -> dict:
+def _row(rows: list[dict], point: str, method: str, seed: str, study: Path, setup: str | None) -> dict:
     found = [r for r in rows if (r["point"], r["method"], r["seed"]) == (point, method, seed)
-             and r["status"] == "ok" and r["cl_psnr"] and r["target_policy"]]
+             and r["status"] == "ok" and r["cl_psnr"] and r["target_policy"]
+             and setup in (None, r["setup"].split("__")[0])]
     if not found:
         raise ProcamError(f"{study / 'results.csv'}: no finished run of point {point}, method {method!r}, "
-                          f"seed {seed} scored in closed loop; expected one of the points "
-                          f"{', '.join(sorted({r['point'] for r in rows}, key=int))}")
+                          f"seed {seed}{'' if setup is None else f', setup {setup!r}'} scored in closed "
+                          f"loop; expected one of the points {', '.join(sorted({r['point'] for r in rows}, key=int))}")
+    if len(found) > 1:
+        names = ", ".join(sorted({r["setup"].split("__")[0] for r in found}))
+        raise ProcamError(f"{study / 'results.csv'}: point {point} holds the setups {names}; choose one "
+                          "with --setup")
     return found[0]
 
 
-def attribute(study: Path, points: tuple[str, str], methods: list[str], seed: int = 0) -> list[dict]:
-    """The closed-loop scores of every mix of the two points' stages.
+def attribute(study: Path, points: tuple[str, str], methods: list[str], seed: int = 0,
+              setup: str | None = None) -> list[dict]:
+    """The closed-loop scores of every mix of the two points' stages (of the base setup ``setup``
+    where a point holds several, as a study over a suite does).
 
     Returns
     -------
@@ -79,20 +86,21 @@ def attribute(study: Path, points: tuple[str, str], methods: list[str], seed: in
     data, sims = {}, {}
     out = []
     for method in methods:
-        picked = {p: _row(rows, p, method, str(seed), study) for p in points}
+        picked = {p: _row(rows, p, method, str(seed), study, setup) for p in points}
         policy = {p: TargetPolicy(r["target_policy"], float(r["target_out_of_reach"])) for p, r in picked.items()}
         if policy[points[0]] != policy[points[1]]:
             raise ProcamError(f"{study}: points {points[0]} and {points[1]} were scored under different "
                               "target policies; expected one")
         fitted = {p: load_run(study / r["run"])[0] for p, r in picked.items()}
+        setups = {p: r["setup"] for p, r in picked.items()}
         for p, r in picked.items():
-            if p not in data:
+            if r["setup"] not in data:
                 setup_dir = study / "data" / r["setup"]
                 n_test = read_json(study / r["run"] / "metrics.json", "run metrics")["n_test"]
-                data[p] = load_setup_data(setup_dir, n_train=1, n_test=n_test)
-                sims[p] = simulator_for(setup_dir)
+                data[r["setup"]] = load_setup_data(setup_dir, n_train=1, n_test=n_test)
+                sims[r["setup"]] = simulator_for(setup_dir)
         for fit, target, camera in itertools.product(points, repeat=3):
-            scores = closed_loop(fitted[fit], data[target], sims[camera], policy=policy[target])
+            scores = closed_loop(fitted[fit], data[setups[target]], sims[setups[camera]], policy=policy[target])
             own = fit == target == camera
             out.append({"method": method, "fit": fit, "target": target, "camera": camera,
                         "cl_psnr": scores["psnr"], "cl_ssim": scores["ssim"], "cl_deltae": scores["deltaE"],
@@ -124,6 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--points", required=True, help="two point numbers of its results.csv, A,B")
     ap.add_argument("--methods", default="tps,nayar,compennet")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--setup", help="the base setup's name, where a point holds several (a study over a suite)")
     ap.add_argument("--csv", type=Path, help="also write the table here")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     args = ap.parse_args(argv)
@@ -134,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     torch.set_num_threads(args.threads)
     try:
-        table = attribute(args.study, points, args.methods.split(","), args.seed)
+        table = attribute(args.study, points, args.methods.split(","), args.seed, args.setup)
     except ProcamError as exc:
         print(f"attribute.py: {exc}", file=sys.stderr)
         return 1
