@@ -21,6 +21,7 @@ import argparse
 import csv
 import io
 import itertools
+import math
 import sys
 from pathlib import Path
 
@@ -30,6 +31,7 @@ from compensation.data import load_setup_data
 from compensation.experiments.closed_loop import closed_loop, simulator_for
 from compensation.experiments.runs import load_run
 from compensation.experiments.targets import TargetPolicy
+from compensation.reports.summary import read_results, read_study
 from sim.errors import ProcamError
 from sim.io import atomic_write, read_json
 
@@ -37,32 +39,30 @@ STAGES = ("fit", "target", "camera")
 """The stages taken from one point or the other, in the order of a table row's key."""
 
 
-COLUMNS = ("point", "setup", "method", "seed", "status", "run", "cl_psnr", "target_policy",
-           "target_out_of_reach")
-"""The ``results.csv`` columns read."""
+CLOSED_LOOP_COLUMNS = ("run", "cl_psnr", "target_policy", "target_out_of_reach")
+"""The ``results.csv`` columns read besides those every results table has."""
 
 
 def _results(study: Path) -> list[dict]:
+    """The study's ``results.csv``, read and checked as the reports read it."""
     path = study / "results.csv"
-    if not path.exists():
-        raise ProcamError(f"{path}: not found; expected a finished procam study folder")
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise ProcamError(f"{path}: no column {', '.join(missing)}; expected the results.csv of "
-                              "procam study")
-        return list(reader)
+    axes = read_study(study)["axes"]
+    rows = read_results(path, [a["key"] for a in axes], {a["key"]: a["values"] for a in axes})
+    missing = [c for c in CLOSED_LOOP_COLUMNS if rows and c not in rows[0]]
+    if missing:
+        raise ProcamError(f"{path}: no column {', '.join(missing)}; expected the results.csv of a "
+                          "procam study scored in closed loop")
+    return rows
 
 
-def _row(rows: list[dict], point: str, method: str, seed: str, study: Path, setup: str | None) -> dict:
+def _row(rows: list[dict], point: int, method: str, seed: int, study: Path, setup: str | None) -> dict:
     found = [r for r in rows if (r["point"], r["method"], r["seed"]) == (point, method, seed)
-             and r["status"] == "ok" and r["cl_psnr"] and r["target_policy"]
+             and r["status"] == "ok" and math.isfinite(r["cl_psnr"]) and r["target_policy"]
              and setup in (None, r["setup"].split("__")[0])]
     if not found:
         raise ProcamError(f"{study / 'results.csv'}: no finished run of point {point}, method {method!r}, "
                           f"seed {seed}{'' if setup is None else f', setup {setup!r}'} scored in closed "
-                          f"loop; expected one of the points {', '.join(sorted({r['point'] for r in rows}, key=int))}")
+                          f"loop; expected one of the points {', '.join(map(str, sorted({r['point'] for r in rows})))}")
     if len(found) > 1:
         names = ", ".join(sorted({r["setup"].split("__")[0] for r in found}))
         raise ProcamError(f"{study / 'results.csv'}: point {point} holds the setups {names}; choose one "
@@ -70,7 +70,7 @@ def _row(rows: list[dict], point: str, method: str, seed: str, study: Path, setu
     return found[0]
 
 
-def attribute(study: Path, points: tuple[str, str], methods: list[str], seed: int = 0,
+def attribute(study: Path, points: tuple[int, int], methods: list[str], seed: int = 0,
               setup: str | None = None) -> list[dict]:
     """The closed-loop scores of every mix of the two points' stages (of the base setup ``setup``
     where a point holds several, as a study over a suite does).
@@ -86,7 +86,7 @@ def attribute(study: Path, points: tuple[str, str], methods: list[str], seed: in
     data, sims = {}, {}
     out = []
     for method in methods:
-        picked = {p: _row(rows, p, method, str(seed), study, setup) for p in points}
+        picked = {p: _row(rows, p, method, seed, study, setup) for p in points}
         policy = {p: TargetPolicy(r["target_policy"], float(r["target_out_of_reach"])) for p, r in picked.items()}
         if policy[points[0]] != policy[points[1]]:
             raise ProcamError(f"{study}: points {points[0]} and {points[1]} were scored under different "
@@ -104,7 +104,7 @@ def attribute(study: Path, points: tuple[str, str], methods: list[str], seed: in
             own = fit == target == camera
             out.append({"method": method, "fit": fit, "target": target, "camera": camera,
                         "cl_psnr": scores["psnr"], "cl_ssim": scores["ssim"], "cl_deltae": scores["deltaE"],
-                        "study_cl_psnr": float(picked[fit]["cl_psnr"]) if own else ""})
+                        "study_cl_psnr": picked[fit]["cl_psnr"] if own else ""})
     return out
 
 
@@ -136,7 +136,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--csv", type=Path, help="also write the table here")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     args = ap.parse_args(argv)
-    points = tuple(p.strip() for p in args.points.split(","))
+    try:
+        points = tuple(int(p) for p in args.points.split(","))
+    except ValueError:
+        points = ()
     if len(points) != 2 or points[0] == points[1]:
         print(f"attribute.py: --points {args.points!r}: expected two different point numbers, A,B",
               file=sys.stderr)
@@ -152,11 +155,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'method':12s} {'fit':>4s} {'target':>7s} {'camera':>7s} {'cl_psnr':>8s} {'study':>8s}")
     for r in table:
         study = f"{r['study_cl_psnr']:.3f}" if r["study_cl_psnr"] != "" else ""
-        print(f"{r['method']:12s} {r['fit']:>4s} {r['target']:>7s} {r['camera']:>7s} {r['cl_psnr']:8.3f} {study:>8s}")
+        print(f"{r['method']:12s} {r['fit']:>4} {r['target']:>7} {r['camera']:>7} {r['cl_psnr']:8.3f} {study:>8s}")
     print(f"main effects, dB (the stage from point {b} instead of {a}, mean over the other stages):")
+    score = {(r["method"], r["fit"], r["target"], r["camera"]): r["cl_psnr"] for r in table}
     for method, effects in main_effects(table, points).items():
-        total = next(r["cl_psnr"] for r in table if r["method"] == method and r["fit"] == r["target"] == r["camera"] == b) \
-            - next(r["cl_psnr"] for r in table if r["method"] == method and r["fit"] == r["target"] == r["camera"] == a)
+        total = score[(method, b, b, b)] - score[(method, a, a, a)]
         print(f"  {method:12s} " + "  ".join(f"{s} {v:+.2f}" for s, v in effects.items()) + f"  (all three {total:+.2f})")
     if args.csv:
         text = io.StringIO()
