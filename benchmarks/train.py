@@ -61,6 +61,7 @@ from compensation.scores.metrics import gaussian_window
 from compensation.methods.compennet import CompenNet, native_bf16
 from compensation.training.conv_grad import faster_backward, nchw_weight_gradients_pay
 from interleave import interleaved
+from sim.cores import usable_cores
 
 STEPS = ("naive", "surface once", "channels_last", "ssim", "inplace relu", "conv backward",
          "retained heap", "compile")
@@ -226,7 +227,7 @@ def main() -> None:
                   f"bf16/float32 {rates['bf16'] / rates['float32']:.2f}×; loss {losses['float32']:.6f} "
                   f"against {losses['bf16']:.6f}", flush=True)
     if args.concurrent:
-        amp, cpus = native_bf16(), os.cpu_count()
+        amp, cpus = native_bf16(), usable_cores()
         print(f"procam's step in {'bf16' if amp else 'float32'}, one process of {threads} threads against "
               f"{cpus} processes of one thread stepping at once (samples/s of all of them, median of "
               f"{args.rounds} rounds of their mean step time):")
