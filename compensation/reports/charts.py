@@ -26,7 +26,10 @@ their own; the ``draw_*`` functions only draw it. Files go to ``DIR/charts/`` as
                                grid of the two factors (x: the first, y: the second), the mean over
                                the cell's runs printed in it (± the std over several), one chart per
                                method (``_n_train=<n>`` added where the study has several training
-                               sizes)
+                               sizes); ``heatmap_gain_<method>.png`` the gain over uncompensated
+                               (closed loop where scored) with its bootstrap interval, which reads
+                               across a factor that moves the target (a darker wall darkens y′ and
+                               raises every PSNR)
 """
 from __future__ import annotations
 
@@ -39,8 +42,8 @@ import numpy as np
 
 from compensation.experiments.jobs import cell_identity
 from compensation.methods import METHODS
-from compensation.reports.summary import (BREAK_GAIN_DB, CONFIDENCE, is_finite, mean_std, order_key,
-                                          closed_loop_gain, n_train_follows)
+from compensation.reports.summary import (BREAK_GAIN_DB, CONFIDENCE, INTERVALS, is_finite, mean_std,
+                                          order_key, closed_loop_gain, n_train_follows)
 from sim.io import atomic_write
 
 PANELS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("deltae", "ΔE (CIEDE2000)"))
@@ -247,16 +250,21 @@ def pareto_front(points: list[tuple[float, float]]) -> list[int]:
     return sorted(front, key=lambda i: (points[i][0], -points[i][1]))
 
 
-HEATMAP_SCORES = (("psnr", "surrogate PSNR"), ("cl_psnr", "closed-loop PSNR"))
-"""Scores of the heatmaps of a two-axis study (dB): the surrogate always, the closed loop where scored."""
+HEATMAP_SCORES = (("psnr", "surrogate PSNR"), ("cl_psnr", "closed-loop PSNR"),
+                  ("gain", "gain over uncompensated"))
+"""Scores of the heatmaps of a two-axis study (dB): the surrogate always, the closed loop where scored,
+and the gain over uncompensated where scored (``summary.csv``'s ``gain_db`` with its interval, of the
+closed loop where scored, else of the surrogate)."""
 
 
 def heatmap_grid(summary: list[dict], axes: list[dict], method: str, n_train: int | None,
                  score: str) -> dict:
     """The cells of one heatmap of a two-axis study: ``x`` and ``y`` (the first and second axis's
     values, in the study's order), and ``mean``, ``std`` (of ``score`` over the cell's ok runs:
-    seeds, and setups of a suite) and ``runs`` (their number) as (len(y), len(x)) arrays, NaN (0
-    runs) where ``method`` has no summary row. ``n_train`` None: any training size (an axis sets it).
+    seeds, and setups of a suite), ``lo``, ``hi`` (the bootstrap interval, for a score of
+    :data:`~compensation.reports.summary.INTERVALS`, whose mean is ``<score>_db``; NaN otherwise)
+    and ``runs`` (their number) as (len(y), len(x)) arrays, NaN (0 runs) where ``method`` has no
+    summary row. ``n_train`` None: any training size (an axis sets it).
 
     >>> axes = [{"key": "a", "values": [1.0, 2.0]}, {"key": "b", "values": ["y", "x"]}]
     >>> s = [{"a": a, "b": b, "method": "tps", "n_train": 8, "psnr_mean": m, "psnr_std": 0.5, "ok": 2}
@@ -268,14 +276,17 @@ def heatmap_grid(summary: list[dict], axes: list[dict], method: str, n_train: in
     first, second = axes[0], axes[1]
     ordered = [sorted({r[a["key"]] for r in summary}, key=lambda v, a=a: order_key(v, a["values"]))
                for a in (first, second)]
-    mean, std = (np.full((len(ordered[1]), len(ordered[0])), math.nan) for _ in range(2))
+    mean, std, lo, hi = (np.full((len(ordered[1]), len(ordered[0])), math.nan) for _ in range(4))
     runs = np.zeros(mean.shape, int)
     for r in summary:
         if r["method"] == method and (n_train is None or r["n_train"] == n_train):
             cell = ordered[1].index(r[second["key"]]), ordered[0].index(r[first["key"]])
-            mean[cell], std[cell] = r.get(f"{score}_mean", math.nan), r.get(f"{score}_std", math.nan)
+            if score in INTERVALS:
+                mean[cell], lo[cell], hi[cell] = (r.get(f"{score}_{s}", math.nan) for s in ("db", "lo", "hi"))
+            else:
+                mean[cell], std[cell] = r.get(f"{score}_mean", math.nan), r.get(f"{score}_std", math.nan)
             runs[cell] = r.get("ok", 0)
-    return {"x": ordered[0], "y": ordered[1], "mean": mean, "std": std, "runs": runs}
+    return {"x": ordered[0], "y": ordered[1], "mean": mean, "std": std, "lo": lo, "hi": hi, "runs": runs}
 
 
 def pyplot():
@@ -592,8 +603,8 @@ def _tick(value) -> str:
 
 def draw_heatmap(grid: dict, axes: list[dict], label: str, stem: Path, title: str) -> list[Path]:
     """Draw one heatmap of :func:`heatmap_grid` to ``stem.png`` and ``stem.svg``: a cell per pair of
-    values, its mean printed in it (± the std where it has several runs), a colour bar of ``label``
-    in dB; a cell without a score grey."""
+    values, its mean printed in it (with its interval where it has one, else ± the std where it has
+    several runs), a colour bar of ``label`` in dB; a cell without a score grey."""
     plt = pyplot()
     mean = np.ma.masked_invalid(grid["mean"])
     fig, ax = plt.subplots(figsize=(1.3 * len(grid["x"]) + 3.0, 0.8 * len(grid["y"]) + 2.4))
@@ -602,7 +613,9 @@ def draw_heatmap(grid: dict, axes: list[dict], label: str, stem: Path, title: st
     fig.colorbar(image, ax=ax).set_label(f"{label} (dB)")
     middle = (mean.min() + mean.max()) / 2 if mean.count() else 0.0
     for (i, j), value in np.ndenumerate(grid["mean"]):
+        lo, hi = grid["lo"][i, j], grid["hi"][i, j]
         text = "no score" if not is_finite(value) else f"{value:.2f}" + (
+            f"\n[{lo:.2f}, {hi:.2f}]" if is_finite(lo) and is_finite(hi) else
             f"\n± {grid['std'][i, j]:.2f}" if grid["runs"][i, j] > 1 and is_finite(grid["std"][i, j]) else "")
         ax.text(j, i, text, ha="center", va="center", fontsize=8,
                 color="black" if not is_finite(value) or value > middle else "white")
@@ -635,6 +648,10 @@ def write_heatmaps(charts: Path, name: str, axes: list[dict], summary: list[dict
                 grid = heatmap_grid(summary, axes, method, n, score)
                 if not np.isfinite(grid["mean"]).any():
                     continue
+                if score in INTERVALS:
+                    closed = any(is_finite(r.get("cl_psnr_mean", math.nan))
+                                 for r in summary if r["method"] == method)
+                    label = ("closed-loop " if closed else "surrogate ") + label
                 size = f"_n_train={n}" if len(sizes) > 1 else ""
                 out.append(draw_heatmap(grid, axes, label, charts / _slug(f"heatmap_{score}_{method}{size}"),
                                         f"{name}: {method}" + (f", n={n}" if size else "") + f", {label}")[0])
