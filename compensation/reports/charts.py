@@ -643,14 +643,14 @@ def write_heatmaps(charts: Path, name: str, axes: list[dict], summary: list[dict
     sizes = sorted({r["n_train"] for r in summary}) if sized else [None]
     out = []
     for method in sorted({r["method"] for r in summary}):
+        # the gain is the closed loop's where scored (the rule of summary.csv's gain_db)
+        closed = any(closed_loop_gain(r)[2] == "closed loop" for r in summary if r["method"] == method)
         for n in sizes:
             for score, label in HEATMAP_SCORES:
                 grid = heatmap_grid(summary, axes, method, n, score)
                 if not np.isfinite(grid["mean"]).any():
                     continue
                 if score in INTERVALS:
-                    closed = any(is_finite(r.get("cl_psnr_mean", math.nan))
-                                 for r in summary if r["method"] == method)
                     label = ("closed-loop " if closed else "surrogate ") + label
                 size = f"_n_train={n}" if len(sizes) > 1 else ""
                 out.append(draw_heatmap(grid, axes, label, charts / _slug(f"heatmap_{score}_{method}{size}"),
