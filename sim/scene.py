@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim import images, surfaces
+from sim.camera import thinlens
 from sim.setup import Setup
 
 PROJECTOR_KEY = "projector"
@@ -85,8 +86,9 @@ def _look_at(cfg) -> "mi.ScalarTransform4f":
 
 
 def sensor(setup: Setup, spp: int) -> dict:
-    """The camera: perspective, or thin lens when ``aperture_radius > 0``; box-filtered HDR film."""
-    c = setup.camera
+    """The camera: perspective, or thin lens when it traces its defocus
+    (:func:`sim.camera.thinlens.traced`); box-filtered HDR film."""
+    c = thinlens.mitsuba_view(setup.camera)
     d = {"type": "perspective", "fov": float(c.fov), "fov_axis": "x", "to_world": _look_at(c),
          "film": {"type": "hdrfilm", "width": int(c.resolution[0]), "height": int(c.resolution[1]),
                   "rfilter": {"type": "box"}, "pixel_format": "rgb"},

@@ -7,7 +7,7 @@ pixel sees only the few projector pixels its footprint on the surface covers, so
 and can be measured from a handful of Mitsuba renders:
 
 1. From the geometry (:func:`footprint_ranges`), every camera pixel's footprint — its pixel
-   square, widened by the thin-lens aperture when the camera has one — is intersected with the
+   square, widened by the thin-lens aperture when Mitsuba traces the camera's lens — is intersected with the
    surface and projected into the projector: a range of projector columns and rows.
 2. ``s × s`` *spaced-dot* frames light every ``s``-th projector pixel in x and y, with ``s`` the
    widest footprint range, so at most one lit pixel lies in any camera pixel's range. Each is
@@ -25,7 +25,9 @@ translucency and the projector's flare are applied before ``T`` (:meth:`sim.rend
 all after the photometry are linear; the white segment and the dynamic lamp are not, but act on
 the frame before ``T`` sees it), so ``T`` is the scene's light transport alone; its projector
 side is the lens's padded grid (:class:`sim.projector.Lens`), which keeps the light blurred past
-the panel's border. Inter-reflection (a corner) makes ``T`` dense: this level declines such setups
+the panel's border. A camera defocus applied in image space (``camera.defocus = "image"``,
+:mod:`sim.camera.thinlens`) acts after ``T``: the operator is the pinhole camera's, shared by
+every aperture and focus. Inter-reflection (a corner) makes ``T`` dense: this level declines such setups
 (:func:`check_supported`) and ``auto`` falls back to path tracing.
 """
 from __future__ import annotations
@@ -43,6 +45,7 @@ import scipy.sparse
 import torch
 
 from sim import geometry, seeds, surfaces
+from sim.camera import thinlens
 from sim.errors import ProcamError, SetupError
 from sim.io import atomic_write
 from sim.projector import chain as projector_chain
@@ -129,7 +132,7 @@ def footprint_ranges(setup: Setup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     seen : numpy.ndarray
         bool (Hc, Wc), True where the footprint touches the surface at all.
     """
-    cam_cfg = setup.camera
+    cam_cfg = thinlens.mitsuba_view(setup.camera)  # the operator is of the camera Mitsuba renders
     wc, hc = cam_cfg.resolution
     cam = geometry.Pinhole.from_config(cam_cfg)
     # A pinhole one pixel wider and taller whose field of view is scaled by (W + 1) / W has its
@@ -178,7 +181,9 @@ def cache_key(setup: Setup, spp: int, variant: str) -> str:
 
     The calibration renders the surface under the projector and the ambient light through
     Mitsuba's camera (:func:`sim.scene.projector_scene`, :func:`sim.scene.ambient_scene`): the
-    surface, ambient and render sections, the camera's :class:`~sim.setup.schema.CameraView`,
+    surface, ambient and render sections, the camera's :class:`~sim.setup.schema.CameraView` as
+    Mitsuba renders it (:func:`sim.camera.thinlens.mitsuba_view`: a defocus in image space acts
+    on the operator's output),
     the projector's :class:`~sim.setup.schema.ProjectorView`, the options of its
     :data:`~sim.projector.chain.TRANSPORT` stages (the emitter's scale) and the lens's padding
     (the emitter's grid and field of view, :func:`sim.projector.lens_for`). The camera's stages,
@@ -186,7 +191,7 @@ def cache_key(setup: Setup, spp: int, variant: str) -> str:
     on the operator's input or output only: setups that differ in nothing else (a study of the
     camera noise, the projector's response or the registration) share one operator, bit for bit.
     """
-    p, c = setup.projector, setup.camera
+    p, c = setup.projector, thinlens.mitsuba_view(setup.camera)
     projector_keys = [f.name for f in fields(ProjectorView)] + [
         f.name for stage in stages_of(projector_chain.TRANSPORT) for f in fields(stage.options)]
     seen = replace(setup, name="transport", registration=RegistrationConfig(),
@@ -382,7 +387,7 @@ class TransportOperator:
         for b, a in np.ndindex(s, s):
             dots = np.zeros((hp, wp, 3), np.float32)
             dots[b::s, a::s] = 1.0
-            img = renderer.projector_radiance(dots, seed).reshape(-1, 3)[cam_idx]
+            img = renderer.transport_radiance(dots, seed).reshape(-1, 3)[cam_idx]
             # the one lit column (row) in each footprint's range, if any
             lit = lo_s + (np.array([a, b]) - lo_s) % s
             ok = np.all(lit <= hi_s, axis=1) & np.any(img != 0, axis=1)
@@ -390,10 +395,10 @@ class TransportOperator:
             cols.append(lit[ok, 1] * wp + lit[ok, 0])
             values.append(img[ok])
         op = cls(np.concatenate(rows), np.concatenate(cols), np.concatenate(values), (wc, hc),
-                 (wp, hp), renderer.ambient_radiance(),
+                 (wp, hp), renderer.transport_ambient(),
                  CalibrationInfo(renderer.spp, seed, s, 0.0, 0.0, renderer.variant))
         test = np.random.default_rng(seeds.TRANSPORT_CHECK).random((hp, wp, 3), dtype=np.float32)
-        want = renderer.projector_radiance(test, seed)
+        want = renderer.transport_radiance(test, seed)
         err = float(np.abs(op.project_image(test) - want).max() / max(float(want.max()), 1e-12))
         if err > VERIFY_TOLERANCE:
             raise ProcamError(
@@ -494,15 +499,15 @@ class TransportRenderer(Renderer):
         self.fidelity = "transport"
         self.device = "cuda" if self.variant.startswith("cuda") and torch.cuda.is_available() else "cpu"
 
-    def projector_radiance(self, irradiance: np.ndarray, seed: int = 0) -> np.ndarray:
+    def transport_radiance(self, irradiance: np.ndarray, seed: int = 0) -> np.ndarray:
         """``T · irradiance`` (the Mitsuba direct render during calibration); ``seed`` is unused
         once calibrated."""
         if self.fidelity != "transport":
-            return super().projector_radiance(irradiance, seed)
+            return super().transport_radiance(irradiance, seed)
         return self.operator.project_image(irradiance, self.device)
 
-    def ambient_radiance(self) -> np.ndarray:
+    def transport_ambient(self) -> np.ndarray:
         """The ambient image ``b`` (rendered once, at ``render.ambient_spp``, direct light)."""
         if self.fidelity != "transport":
-            return super().ambient_radiance()
+            return super().transport_ambient()
         return self.operator.ambient

@@ -264,8 +264,9 @@ CONSTANT_CAPTURES = {
     "camera.white_balance=1e30": {"camera": {"white_balance": [1e30] * 3}},
     "camera.shot_noise=1e30": {"camera": {"shot_noise": 1e30}},
     "camera.read_noise=1e30": {"camera": {"read_noise": 1e30}},
-    "camera.aperture_radius=1e30": {"camera": {"aperture_radius": 1e30}},
-    "camera.focus_distance=1e-30": {"camera": {"aperture_radius": 0.01, "focus_distance": 1e-30}},
+    "camera.aperture_radius=1e30 traced": {"camera": {"aperture_radius": 1e30, "defocus": "ray"}},
+    "camera.focus_distance=1e-30 traced": {"camera": {"aperture_radius": 0.01, "focus_distance": 1e-30,
+                                                      "defocus": "ray"}},
     "camera.position=1e30 away": {"camera": {"position": [0.25, 0.0, 1e30]}},
     "surface.albedo_scale=1e-30": {"surface": {"albedo_scale": 1e-30}},
     "surface.tint=0": {"surface": {"tint": [0.0] * 3}},
@@ -332,6 +333,18 @@ def test_a_defocus_disk_wider_than_the_panel_is_refused_before_its_kernel(tmp_pa
              f"projector.aperture = {projector['aperture']:g} m", "expected at most the panel's 64 pixels")
     assert not (data / "tiny" / "setup.toml").exists()
     assert main(["render", str(tiny_setup_file(tmp_path)), "--out", str(data), *ARGS]) == 0
+
+
+@pytest.mark.parametrize("camera", [{"aperture_radius": 1e30}, {"aperture_radius": 0.01, "focus_distance": 1e-30}],
+                         ids=["aperture_radius=1e30", "focus_distance=1e-30"])
+def test_a_camera_defocus_disk_wider_than_the_image_is_refused_before_its_kernel(tmp_path, capsys, camera):
+    """The same for the camera's defocus in image space (``camera.defocus = "image"``): refused
+    before the scene is built, nothing written."""
+    data = tmp_path / "data"
+    _refused(capsys, ["render", str(tiny_setup_file(tmp_path, camera=camera)), "--out", str(data), *ARGS],
+             f"camera.aperture_radius = {camera['aperture_radius']:g} m", "expected at most the image's 64 pixels",
+             'camera.defocus = "ray"')
+    assert not (data / "tiny" / "setup.toml").exists()
 
 
 def test_output_root_that_is_a_file_is_refused(tmp_path, capsys):

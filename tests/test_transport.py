@@ -201,14 +201,16 @@ SEEN_ELSEWHERE = {"projector": {"gamma": 1.8, "black_level": 0.01, "mixing": [[0
                                 "flare": 0.02, "flicker": 0.01, "translucency_mfp": 5.0,
                                 "translucency_fraction": 0.3},
                   "camera": {"shot_noise": 1e-3, "read_noise": 1e-2, "response": "gamma:2.2", "exposure": 2.0,
-                             "psf_sigma": 0.5, "vignetting": 0.2, "jpeg_quality": 80},
+                             "psf_sigma": 0.5, "vignetting": 0.2, "jpeg_quality": 80,
+                             "aperture_radius": 0.002, "focus_distance": 0.8},  # defocus in image space
                   "registration": {"method": "homography", "jitter": 0.5}}
-"""Keys of the stages before and after the light transport, and of the registration."""
+"""Keys of the stages before and after the light transport, a camera defocus applied in image
+space, and keys of the registration."""
 
 
 def test_setups_that_differ_outside_the_transport_share_one_operator(tmp_path):
-    """Setups that differ in the camera's stages, the projector's stages that leave its padded grid
-    alone, the registration and the name calibrate the same operator, bit for bit, and share one
+    """Setups that differ in the camera's stages and its defocus in image space, the projector's
+    stages that leave its padded grid alone, the registration and the name calibrate the same operator, bit for bit, and share one
     cache file; what the transport sees (pose, brightness, padding, surface, room light, seed,
     spp) makes another."""
     scene = {"surface": {"texture": "noise"}, "ambient": {"radiance": [0.02, 0.02, 0.02]}}
@@ -225,7 +227,7 @@ def test_setups_that_differ_outside_the_transport_share_one_operator(tmp_path):
     apart = [tiny_setup(**scene, projector={"brightness": 2.0}),
              tiny_setup(**scene, projector={"psf_sigma": 1.0}),  # a wider emitter grid
              tiny_setup(**scene, projector={"position": [0.01, 0.0, 1.0]}),
-             tiny_setup(**scene, camera={"aperture_radius": 0.002}),
+             tiny_setup(**scene, camera={"aperture_radius": 0.002, "defocus": "ray"}),
              tiny_setup(surface={"texture": "noise", "texture_seed": 3}, ambient=scene["ambient"]),
              tiny_setup(surface=scene["surface"], ambient={"radiance": [0.03, 0.03, 0.03]}),
              tiny_setup(**scene, render={"seed": 1})]

@@ -17,6 +17,7 @@ from types import MappingProxyType
 
 from sim import surfaces
 from sim.camera import chain as camera_chain
+from sim.camera import thinlens
 from sim.options import (NON_NEGATIVE, POSITIVE, UNIT, Range, choice, combine, integer, number,
                          string, variant, vector)
 from sim.projector import chain as projector_chain
@@ -117,7 +118,13 @@ class CameraView:
     aperture_radius: float = number(0.0, NON_NEGATIVE, "metres")
     """Metres, thin-lens aperture radius (>= 0); 0 is a pinhole."""
     focus_distance: float = number(1.03, POSITIVE, "metres")
-    """Metres (> 0), in-focus distance (used when ``aperture_radius > 0``)."""
+    """Metres (> 0), depth along the optical axis of the plane in focus (used when
+    ``aperture_radius > 0``)."""
+    defocus: str = choice("image", thinlens.DEFOCUS_MODELS)
+    """How the thin lens's defocus is rendered (when ``aperture_radius > 0``): ``"image"``, the
+    pinhole render with each pixel's light spread over its circle of confusion (exact on every
+    surface procam builds, at a pinhole's samples per pixel); ``"ray"``, Mitsuba's thin-lens
+    sensor sampling the aperture per ray (see :mod:`sim.camera.thinlens`)."""
 
 
 CameraConfig = combine(

@@ -1,0 +1,124 @@
+"""The camera's thin lens: its defocus rendered in image space, or traced by Mitsuba.
+
+A thin lens of aperture radius ``r`` focused on the plane at depth ``f`` (along the optical axis)
+images a surface point at depth ``d`` onto a uniform disk centred on the point's pinhole image,
+of diameter ``2 r |d - f| / (f d)`` times the focal length in pixels: the ray through an aperture
+point ``a`` towards the point meets the plane of focus at ``x f / d + a (1 - f / d)``, so the
+pixel it lands in is offset from the pinhole pixel by ``a (1 - f / d)`` scaled to pixels, and the
+aperture is sampled uniformly over its disk, each sample of weight one. Hence ``camera.defocus``:
+
+- ``"image"`` (the default): Mitsuba renders the pinhole image and each camera pixel's light is
+  scattered over its own disk (:func:`sim.projector.varying_defocus`, the projector lens's model:
+  anti-aliased disks, linear in the light, keeping its energy). Exact for a surface that hides
+  no part of itself from any point of the aperture (every surface procam builds: planes, relief of
+  millimetres, corners opening towards the camera), up to the disk's anti-aliasing and the light
+  a disk would carry in from outside the field of view (missing within one disk radius of the
+  image border). The Monte-Carlo error is that of a pinhole render, and a ``transport`` operator
+  is the pinhole camera's, shared by every aperture and focus.
+- ``"ray"``: Mitsuba's ``thinlens`` sensor samples the aperture per ray (exact with occlusion
+  too), whose Monte-Carlo error grows with the blur (hundreds of samples per pixel) and whose
+  ``transport`` operator needs one calibration per aperture with footprints as wide as the disk.
+
+``tests/test_thinlens.py`` compares the two on a textured plane.
+"""
+from __future__ import annotations
+
+from dataclasses import fields, replace
+
+import numpy as np
+
+from sim import geometry, surfaces
+from sim.errors import ProcamError
+from sim.projector.defocus import SHARP_DIAMETER, defocus_blur_diameter_px, defocus_plan, varying_defocus
+
+DEFOCUS_MODELS = ("image", "ray")
+"""Values of ``camera.defocus``."""
+
+
+def traced(cam) -> bool:
+    """True when Mitsuba's sensor traces the thin lens (``defocus = "ray"`` with an aperture)."""
+    return cam.aperture_radius > 0 and cam.defocus == "ray"
+
+
+def mitsuba_view(cam):
+    """The camera configuration as Mitsuba's sensor sees it: unchanged when it traces the thin
+    lens (:func:`traced`), else a pinhole (``aperture_radius`` 0, the default focus and model), so
+    that every camera whose defocus is applied in image space, or that has none, renders (and
+    calibrates, and caches) the same pinhole image."""
+    if traced(cam):
+        return cam
+    default = {f.name: f.default for f in fields(cam) if f.name in ("focus_distance", "defocus")}
+    return replace(cam, aperture_radius=0.0, **default)
+
+
+def diameters(setup) -> np.ndarray:
+    """Each camera pixel's defocus disk diameter, in camera pixels.
+
+    Parameters
+    ----------
+    setup : Setup
+        The setup (the camera's pose, field of view, resolution, ``aperture_radius`` and
+        ``focus_distance``; the surface).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 (height, width): ``2 r |d - f| / (f d)`` times the focal length in pixels, ``d``
+        the depth of the surface point the pixel's pinhole ray hits; a pixel that sees no
+        surface (no light to spread) takes the median of those that do.
+
+    Raises
+    ------
+    ProcamError
+        If a disk is wider than the image (its kernel's size grows as the square of its
+        diameter): checked before any kernel is made.
+    """
+    cam = setup.camera
+    pinhole = geometry.Pinhole.from_config(cam)
+    depth = surfaces.surface_for(setup.surface).projector_depth(pinhole)
+    hit = np.isfinite(depth) & (depth > 0)
+    fill = float(np.median(depth[hit])) if hit.any() else cam.focus_distance
+    out = np.asarray(defocus_blur_diameter_px(2.0 * cam.aperture_radius, cam.focus_distance,
+                                              np.where(hit, depth, fill), cam.fov, cam.resolution[0]),
+                     np.float64)
+    widest, side = float(out.max()), max(cam.resolution)
+    if not widest <= side:
+        raise ProcamError(f"setup {setup.name!r}: camera.aperture_radius = {cam.aperture_radius:g} m "
+                          f"focused at camera.focus_distance = {cam.focus_distance:g} m blurs a pixel "
+                          f"over a disk of {widest:.3g} camera pixels; expected at most the image's "
+                          f"{side} pixels (a smaller aperture, or a focus distance nearer the "
+                          'surface\'s; camera.defocus = "ray" traces the lens instead)')
+    return out
+
+
+class ImageDefocus:
+    """The camera's defocus in image space for one setup: call it on a pinhole radiance image.
+
+    Parameters
+    ----------
+    setup : Setup
+        The setup (see :func:`diameters`).
+
+    Attributes
+    ----------
+    diameters : numpy.ndarray
+        float64 (height, width) disk diameter per camera pixel.
+    """
+
+    def __init__(self, setup):
+        self.diameters = diameters(setup)
+        self._plan = defocus_plan(self.diameters)
+
+    def __call__(self, radiance: np.ndarray) -> np.ndarray:
+        """The radiance with each pixel's light spread over its disk (float32 (H, W, 3))."""
+        return varying_defocus(np.asarray(radiance, np.float32), self.diameters, self._plan)
+
+
+def image_defocus(setup) -> ImageDefocus | None:
+    """The image-space defocus a renderer of ``setup`` applies, or None where it applies none
+    (a pinhole, a traced thin lens, or a lens in focus on every pixel)."""
+    cam = setup.camera
+    if cam.aperture_radius <= 0 or traced(cam):
+        return None
+    blur = ImageDefocus(setup)
+    return blur if float(blur.diameters.max()) >= SHARP_DIAMETER else None

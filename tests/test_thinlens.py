@@ -1,0 +1,97 @@
+"""The camera's thin lens in image space (``camera.defocus = "image"``) against Mitsuba's traced
+thin lens, its disk widths, energy and linearity, and the pinhole operator and ambient it shares."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from helpers import tiny_setup
+from sim import transport
+from sim.camera import thinlens
+from sim.errors import SetupError
+from sim.projector import varying_defocus
+from sim.render import Renderer
+
+SPP = 1024
+INNER = slice(8, -8)  # away from the border, where a disk would bring light from outside the view
+
+
+def _lens(radius: float, model: str, spp: int = SPP, **camera):
+    return tiny_setup(surface={"texture": "noise"}, ambient={"radiance": [0.05, 0.05, 0.05]},
+                      render={"spp": spp, "ambient_spp": spp},
+                      camera={"aperture_radius": radius, "focus_distance": 0.6, "defocus": model, **camera})
+
+
+def _rmse(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean((a[INNER, INNER] - b[INNER, INNER]) ** 2)))
+
+
+def test_diameters_follow_the_thin_lens_formula():
+    """2 r F |d - f| / (f d) camera pixels, d the depth along the axis: head-on at 1 m, focused at
+    0.6 m, r = 2 cm on a 64-pixel 40-degree camera is 2 * 0.02 * 87.9 * 0.4 / 0.6 = 2.34 px."""
+    setup = tiny_setup(camera={"position": [0.0, 0.0, 1.0], "aperture_radius": 0.02,
+                               "focus_distance": 0.6})
+    d = thinlens.diameters(setup)
+    focal = 32 / np.tan(np.radians(20))
+    want_centre = 2 * 0.02 * focal * 0.4 / 0.6
+    assert d[31:33, 31:33] == pytest.approx(want_centre, rel=1e-6)  # the plane is at depth 1 everywhere
+    assert np.ptp(d) < 1e-9
+    tilted = thinlens.diameters(_lens(0.02, "image"))  # the camera 0.25 m off axis: depth varies
+    assert np.ptp(tilted) > 0.05 * tilted.mean()
+
+
+@pytest.mark.parametrize("radius", [0.015, 0.03])
+def test_image_defocus_matches_the_traced_thin_lens(radius):
+    """Pinhole render + per-pixel disks against Mitsuba's thin-lens sensor (1024 spp) on a noise
+    texture lit by a random frame: closer than the sharp image by 3x (1.6-2.1 px disks) and 10x
+    (3.2-4.1 px), and closer than disks 30 % wider."""
+    ray, image = Renderer(_lens(radius, "ray")), Renderer(_lens(radius, "image"))
+    irr = image.emit(np.random.default_rng(1).random((64, 64, 3), dtype=np.float32))
+    truth = ray.projector_radiance(irr, seed=3) + ray.ambient_radiance()
+    pinhole = image.transport_radiance(irr, seed=5) + image.transport_ambient()
+    model = image.projector_radiance(irr, seed=5) + image.ambient_radiance()
+    wider = varying_defocus(pinhole, 1.3 * image.camera_defocus.diameters)
+    err = _rmse(model, truth)
+    assert err < _rmse(pinhole, truth) / (3 if radius < 0.02 else 10)
+    assert err < 0.75 * _rmse(wider, truth)
+    np.testing.assert_allclose(model[INNER, INNER].mean(), truth[INNER, INNER].mean(), rtol=0.01)
+
+
+def test_image_defocus_is_linear_keeps_energy_and_widens_a_line_by_the_diameter():
+    setup = _lens(0.03, "image", position=[0.0, 0.0, 1.0])  # head-on: one diameter
+    blur = thinlens.ImageDefocus(setup)
+    d = float(blur.diameters[32, 32])
+    rng = np.random.default_rng(0)
+    a, b = (rng.random((64, 64, 3), dtype=np.float32) for _ in range(2))
+    np.testing.assert_allclose(blur(a + b), blur(a) + blur(b), atol=1e-5)
+    spot = np.zeros((64, 64, 3), np.float32)
+    spot[30:34, 30:34] = 1.0
+    assert blur(spot).sum() == pytest.approx(spot.sum(), rel=1e-5)
+    line = np.zeros((64, 64, 3), np.float32)
+    line[:, 32] = 1.0
+    profile = blur(line)[32, :, 0]
+    assert np.count_nonzero(profile > 1e-6) == pytest.approx(d, abs=2.0)  # the disk's width
+    assert profile.argmax() == 32
+
+
+def test_the_image_model_renders_and_calibrates_the_pinhole_camera(tmp_path):
+    """Every aperture and focus in image space shares the pinhole's operator and ambient render;
+    a traced lens has its own."""
+    pinhole = tiny_setup()
+    image = tiny_setup(camera={"aperture_radius": 0.03, "focus_distance": 0.6})
+    assert transport.cache_key(image, 4, "v") == transport.cache_key(pinhole, 4, "v")
+    traced = tiny_setup(camera={"aperture_radius": 0.03, "focus_distance": 0.6, "defocus": "ray"})
+    assert transport.cache_key(traced, 4, "v") != transport.cache_key(pinhole, 4, "v")
+    op = transport.TransportRenderer(image, 4, cache_dir=tmp_path)
+    again = transport.TransportRenderer(pinhole, 4, cache_dir=tmp_path)
+    assert again.loaded_from_cache and again.camera_defocus is None
+    frame = np.random.default_rng(2).random((64, 64, 3), dtype=np.float32)
+    np.testing.assert_allclose(op.projector_radiance(frame),
+                               op.camera_defocus(again.projector_radiance(frame)), atol=1e-6)
+
+
+def test_a_pinhole_or_an_unknown_model():
+    assert thinlens.image_defocus(tiny_setup()) is None
+    assert thinlens.image_defocus(_lens(0.03, "ray")) is None
+    with pytest.raises(SetupError, match=r'camera\.defocus = "blur": expected one of "image", "ray"'):
+        _lens(0.03, "blur")
