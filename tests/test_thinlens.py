@@ -95,3 +95,21 @@ def test_a_pinhole_or_an_unknown_model():
     assert thinlens.image_defocus(_lens(0.03, "ray")) is None
     with pytest.raises(SetupError, match=r'camera\.defocus = "blur": expected one of "image", "ray"'):
         _lens(0.03, "blur")
+
+
+def test_a_simulator_captures_through_the_lens_in_image_space(tmp_path):
+    """The capture path (transport level, exposure rule, registration) sees the blurred radiance:
+    each capture's linear radiance is the pinhole simulator's through the disks."""
+    from sim.capture import Simulator
+
+    keys = {"surface": {"texture": "noise"}, "ambient": {"radiance": [0.02, 0.02, 0.02]},
+            "registration": {"method": "exact"}, "camera": {"exposure_mode": "rule"}}
+    pinhole = Simulator(tiny_setup(**keys), (32, 32), fidelity="transport", cache_dir=tmp_path)
+    lens = {**keys, "camera": {**keys["camera"], "aperture_radius": 0.03, "focus_distance": 0.6}}
+    blurred = Simulator(tiny_setup(**lens), (32, 32), fidelity="transport", cache_dir=tmp_path)
+    assert blurred.renderer.loaded_from_cache  # the pinhole's operator
+    frame = np.random.default_rng(3).integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    want = blurred.renderer.camera_defocus(pinhole.linear(frame, 0, 0))
+    np.testing.assert_allclose(blurred.linear(frame, 0, 0), want, rtol=1e-5, atol=1e-7)
+    sharp, soft = (np.diff(s.capture(frame[None], 0)[0].astype(float), axis=1).std() for s in (pinhole, blurred))
+    assert soft < 0.8 * sharp
