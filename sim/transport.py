@@ -7,8 +7,9 @@ pixel sees only the few projector pixels its footprint on the surface covers, so
 and can be measured from a handful of Mitsuba renders:
 
 1. From the geometry (:func:`footprint_ranges`), every camera pixel's footprint — its pixel
-   square, widened by the thin-lens aperture when Mitsuba traces the camera's lens — is intersected with the
-   surface and projected into the projector: a range of projector columns and rows.
+   square, widened by the thin-lens aperture when Mitsuba traces the camera's lens — is
+   intersected with the surface and projected into the projector: a range of projector columns
+   and rows.
 2. ``s × s`` *spaced-dot* frames light every ``s``-th projector pixel in x and y, with ``s`` the
    widest footprint range, so at most one lit pixel lies in any camera pixel's range. Each is
    rendered with the ``direct`` integrator at the calibration spp and **one fixed seed**, and a
@@ -27,8 +28,8 @@ the frame before ``T`` sees it), so ``T`` is the scene's light transport alone; 
 side is the lens's padded grid (:class:`sim.projector.Lens`), which keeps the light blurred past
 the panel's border. A camera defocus applied in image space (``camera.defocus = "image"``,
 :mod:`sim.camera.thinlens`) acts after ``T``: the operator is the pinhole camera's, shared by
-every aperture and focus. Inter-reflection (a corner) makes ``T`` dense: this level declines such setups
-(:func:`check_supported`) and ``auto`` falls back to path tracing.
+every aperture and focus. Inter-reflection (a corner) makes ``T`` dense: this level declines
+such setups (:func:`check_supported`) and ``auto`` falls back to path tracing.
 """
 from __future__ import annotations
 

@@ -122,9 +122,10 @@ class CameraView:
     ``aperture_radius > 0``)."""
     defocus: str = choice("image", thinlens.DEFOCUS_MODELS)
     """How the thin lens's defocus is rendered (when ``aperture_radius > 0``): ``"image"``, the
-    pinhole render with each pixel's light spread over its circle of confusion (exact on every
-    surface procam builds, at a pinhole's samples per pixel); ``"ray"``, Mitsuba's thin-lens
-    sensor sampling the aperture per ray (see :mod:`sim.camera.thinlens`)."""
+    pinhole render with each pixel's light spread over its circle of confusion, at a pinhole's
+    samples per pixel (it cannot restore detail finer than a pixel, which a disk of a few pixels
+    would move across pixel borders); ``"ray"``, Mitsuba's thin-lens sensor sampling the
+    aperture per ray (see :mod:`sim.camera.thinlens`)."""
 
 
 CameraConfig = combine(
