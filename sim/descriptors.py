@@ -2,13 +2,16 @@
 descriptors of :data:`DESCRIPTORS` (a study records them beside its axis values)."""
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from sim.camera import thinlens
 from sim.projector.lens import lens_for
 from sim.projector.scaler import frame_area
+from sim.registration import exact_map
 from sim.setup import Setup
 
 
@@ -33,6 +36,36 @@ def projector_blur(setup: Setup, size: tuple[int, int]) -> float:
     return float(np.median(disks)) * size[0] / w
 
 
+def camera_blur(setup: Setup, size: tuple[int, int]) -> float:
+    """The camera's defocus blur in canonical pixels: the median diameter of the thin lens's disks
+    (:func:`sim.camera.thinlens.diameters`, in camera pixels) where the canonical pixels are
+    seen, over the camera pixels per canonical pixel there (the exact map's spacing, the geometric
+    mean of its two directions); 0 for a pinhole. The same whether the lens is rendered in image
+    space or traced.
+
+    Parameters
+    ----------
+    setup : Setup
+        The setup.
+    size : (int, int)
+        Canonical (width, height) in pixels.
+    """
+    if setup.camera.aperture_radius <= 0:
+        return 0.0
+    wmap = exact_map(setup, size)
+    disks = thinlens.diameters(setup)
+    h, w = disks.shape
+    seen = wmap.mask
+    cols = np.clip(wmap.xy[..., 0].astype(int), 0, w - 1)
+    rows = np.clip(wmap.xy[..., 1].astype(int), 0, h - 1)
+    dx = np.linalg.norm(np.diff(wmap.xy, axis=1), axis=-1)[seen[:, 1:] & seen[:, :-1]]
+    dy = np.linalg.norm(np.diff(wmap.xy, axis=0), axis=-1)[seen[1:] & seen[:-1]]
+    if not (dx.size and dy.size):
+        return float("nan")
+    per_canonical = math.sqrt(float(np.median(dx)) * float(np.median(dy)))
+    return float(np.median(disks[rows[seen], cols[seen]])) / per_canonical
+
+
 @dataclass(frozen=True)
 class Descriptor:
     """A physical quantity a setup key sets."""
@@ -45,6 +78,8 @@ class Descriptor:
     """Its value for a setup at a canonical (width, height)."""
 
 
-DESCRIPTORS = {key: Descriptor("projector defocus blur", "canonical px", projector_blur)
-               for key in ("projector.aperture", "projector.focus_distance")}
+DESCRIPTORS = {**{key: Descriptor("projector defocus blur", "canonical px", projector_blur)
+                  for key in ("projector.aperture", "projector.focus_distance")},
+               **{key: Descriptor("camera defocus blur", "canonical px", camera_blur)
+                  for key in ("camera.aperture_radius", "camera.focus_distance")}}
 """Setup key → the physical quantity it sets."""

@@ -1,5 +1,5 @@
-"""Physical descriptors of setup keys: the projector's defocus blur in canonical pixels against the
-thin-lens disk, and the study record and charts that carry them."""
+"""Physical descriptors of setup keys: the projector's and the camera's defocus blur in canonical
+pixels against the thin-lens disk, and the study record and charts that carry them."""
 from __future__ import annotations
 
 import json
@@ -12,7 +12,7 @@ from compensation.experiments.studies import expand, load_study, study_record
 from compensation.reports.charts import tick_labels
 from compensation.reports.summary import read_study
 from sim.errors import ProcamError
-from sim.descriptors import projector_blur
+from sim.descriptors import camera_blur, projector_blur
 from sim.projector.lens import throw_distance
 from sim.projector.scaler import frame_area
 from sim.setup import load_setup, scene_path
@@ -38,6 +38,30 @@ def test_projector_blur_is_the_thin_lens_disk_in_canonical_pixels(aperture, size
     assert projector_blur(setup, (size, size)) == pytest.approx(expected, rel=0.02)
     in_focus = replace(setup, projector=replace(p, focus_distance=d))
     assert projector_blur(in_focus, (size, size)) < 0.05 * expected
+
+
+@pytest.mark.parametrize("model", ["image", "ray"])
+def test_camera_blur_is_the_thin_lens_disk_in_canonical_pixels(model):
+    """A camera head-on to a plane at 1 m, focused at 0.6 m: a disk of 2 r |1 - 0.6| / 0.6 metres
+    on the surface, over the canonical pixel's width there (the projector's 64-pixel panel 30
+    degrees wide at 1 m, seen at 32x32), whatever the camera's resolution and field of view."""
+    from helpers import tiny_setup
+
+    want = 2 * 0.01 * 0.4 / 0.6 / (2 * math.tan(math.radians(15)) / 32)
+    for resolution, fov in (((64, 64), 40.0), ((200, 120), 45.0)):
+        setup = tiny_setup(camera={"position": [0.0, 0.0, 1.0], "resolution": list(resolution), "fov": fov,
+                                   "aperture_radius": 0.01, "focus_distance": 0.6, "defocus": model})
+        assert camera_blur(setup, (32, 32)) == pytest.approx(want, rel=0.02)
+    assert camera_blur(tiny_setup(), (32, 32)) == 0.0
+
+
+@pytest.mark.slow
+def test_the_camera_defocus_study_records_its_blur():
+    study = load_study(STUDIES / "camera-defocus.toml")
+    physical = study_record(study, expand(study))["axes"][0]["physical"]
+    assert (physical["label"], physical["unit"]) == ("camera defocus blur", "canonical px")
+    # the study file's 0, 0.28, 0.55, 1.1 and 2.2 canonical px at the frame area's centre
+    assert physical["values"] == pytest.approx([0.0, 0.29, 0.59, 1.17, 2.34], abs=0.02)
 
 
 @pytest.mark.slow
