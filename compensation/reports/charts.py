@@ -55,10 +55,11 @@ LEGEND_COLUMNS = 4
 """Entries per row of a figure's shared legend (five long labels overflow the figure's width)."""
 BOUNDS = {"oracle_": (":", "feedback oracle"), "optimum_": ("-", "exact optimum (physical bound)")}
 """Line style and label of each method-free row of :data:`SCOPES`."""
-LOG_SPAN = 20
+LOG_SPAN = 8
 """A numeric factor whose positive values span this ratio or more is drawn on a log axis (e.g. 8 …
 500 pairs), with a linear stretch down to 0 where 0 is one of its values (a smoothing λ of 0, 1e-4
-… 1); see :func:`x_scale`."""
+… 1; an aperture of 0 then doubling four times, whose small values a linear axis crowds into
+its first tick); see :func:`x_scale`."""
 FAILURE_COLOUR = "#d62728"
 DPI = 110
 
@@ -87,8 +88,10 @@ def x_scale(positions: list[float]) -> tuple[str, float | None]:
     and span :data:`LOG_SPAN` or more, or ``"symlog"`` where they also include 0 (linear from 0 to
     the smallest positive value, returned as the threshold, logarithmic above it).
 
-    >>> x_scale([0.0, 0.01, 0.02, 0.08])
+    >>> x_scale([0.0, 0.01, 0.02, 0.04])
     ('linear', None)
+    >>> x_scale([0.0, 0.01, 0.02, 0.04, 0.08])
+    ('symlog', 0.01)
     >>> x_scale([8.0, 32.0, 500.0])
     ('log', None)
     >>> x_scale([0.0, 1e-4, 1e-2, 1.0])
@@ -402,7 +405,7 @@ def _x_axis(axis: dict, summary: list[dict]) -> tuple[dict, bool, tuple[str, flo
     scale = x_scale(list(pos.values())) if numeric else ("linear", None)
     label = (axis.get("label") or key) + (f" ({axis['unit']})" if axis.get("unit") else "")
     if physical := axis.get("physical"):
-        label += f"; below it: {physical['label']} ({physical['unit']})"
+        label += f"\nbelow it: {physical['label']} ({physical['unit']})"
     return pos, numeric, scale, label
 
 
@@ -433,13 +436,19 @@ def tick_labels(axis: dict, pos: dict) -> list[str]:
 
 def _format_x(ax, pos: dict, numeric: bool, scale: tuple[str, float | None], xlabel: str,
               axis: dict) -> None:
-    """Ticks at the factor's values (categorical, or a log axis as :func:`x_scale` draws it;
-    :func:`tick_labels`), its label and a grid."""
+    """Ticks at the factor's values (categorical, or a log axis as :func:`x_scale` draws it, its
+    linear stretch from 0 as wide as the first step above it; :func:`tick_labels`), its label and
+    a grid."""
     from matplotlib.ticker import NullFormatter
 
     kind, threshold = scale
     if kind != "linear":
-        ax.set_xscale(kind, **({"linthresh": threshold} if threshold else {}))
+        # symlog: the stretch from 0 to the smallest value as wide as the step after it (matplotlib
+        # widens a linear stretch of ``linscale`` decades by 1 / (1 - 1 / base), base 10)
+        positive = sorted(v for v in pos.values() if v > 0)
+        linear = ({"linthresh": threshold, "linscale": 0.9 * math.log10(positive[1] / positive[0])}
+                  if threshold else {})
+        ax.set_xscale(kind, **linear)
         ax.xaxis.set_minor_formatter(NullFormatter())
     if kind != "linear" or not numeric or axis.get("physical"):
         ax.set_xticks(sorted(pos.values()), tick_labels(axis, pos))
