@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.camera import thinlens
+from sim.errors import ProcamError
 from sim.projector.lens import lens_for
 from sim.projector.scaler import frame_area
 from sim.registration import exact_map
@@ -49,6 +50,12 @@ def camera_blur(setup: Setup, size: tuple[int, int]) -> float:
         The setup.
     size : (int, int)
         Canonical (width, height) in pixels.
+
+    Raises
+    ------
+    ProcamError
+        If a disk is wider than the image (:func:`sim.camera.thinlens.diameters`), or no two
+        neighbouring canonical pixels are seen.
     """
     if setup.camera.aperture_radius <= 0:
         return 0.0
@@ -61,7 +68,8 @@ def camera_blur(setup: Setup, size: tuple[int, int]) -> float:
     dx = np.linalg.norm(np.diff(wmap.xy, axis=1), axis=-1)[seen[:, 1:] & seen[:, :-1]]
     dy = np.linalg.norm(np.diff(wmap.xy, axis=0), axis=-1)[seen[1:] & seen[:-1]]
     if not (dx.size and dy.size):
-        return float("nan")
+        raise ProcamError(f"setup {setup.name!r}: the camera sees too little of the projected frame "
+                          "to measure its blur in canonical pixels")
     per_canonical = math.sqrt(float(np.median(dx)) * float(np.median(dy)))
     return float(np.median(disks[rows[seen], cols[seen]])) / per_canonical
 
