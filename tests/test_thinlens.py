@@ -44,16 +44,18 @@ def test_diameters_follow_the_thin_lens_formula():
 def test_image_defocus_matches_the_traced_thin_lens(radius):
     """Pinhole render + per-pixel disks against Mitsuba's thin-lens sensor (1024 spp) on a noise
     texture lit by a random frame: closer than the sharp image by 3x (1.6-2.1 px disks) and 10x
-    (3.2-4.1 px), and closer than disks 30 % wider."""
+    (3.2-4.1 px), and closer by a quarter than disks 20 % narrower or wider (the formula's diameter
+    is the one that matches the traced lens best: on 3-7 px disks at 2048 spp, 5 % off already
+    adds 10-20 % to the error)."""
     ray, image = Renderer(_lens(radius, "ray")), Renderer(_lens(radius, "image"))
     irr = image.emit(np.random.default_rng(1).random((64, 64, 3), dtype=np.float32))
     truth = ray.projector_radiance(irr, seed=3) + ray.ambient_radiance()
     pinhole = image.transport_radiance(irr, seed=5) + image.transport_ambient()
     model = image.projector_radiance(irr, seed=5) + image.ambient_radiance()
-    wider = varying_defocus(pinhole, 1.3 * image.camera_defocus.diameters)
     err = _rmse(model, truth)
     assert err < _rmse(pinhole, truth) / (3 if radius < 0.02 else 10)
-    assert err < 0.75 * _rmse(wider, truth)
+    for scale in (0.8, 1.2):  # the whole image (ambient too) through disks of another size
+        assert err < 0.8 * _rmse(varying_defocus(pinhole, scale * image.camera_defocus.diameters), truth)
     np.testing.assert_allclose(model[INNER, INNER].mean(), truth[INNER, INNER].mean(), rtol=0.01)
 
 
