@@ -14,13 +14,13 @@ natural frame and independent random pixels) three ways:
   its disk (:mod:`sim.camera.thinlens`);
 - ``ray`` at 64 and 256 spp, the samples a traced lens gets in a dataset.
 
-Errors (``image`` per class, ``ray`` the worse class) are RMS in linear signal units (radiance times the exposure the exposure rule sets on
-the window), over the window's pixels farther than the largest disk radius from its border, and
-given as a multiple of the camera's own noise there (:func:`sim.fidelity.noise_floor`): ``auto``
-accepts a level at 1x or less. Seconds are per full 960x640 capture, projector and ambient
+Errors (``image`` per class, ``ray`` the worse class) are RMS in linear signal units (radiance
+times the exposure the exposure rule sets on the window), over the window's pixels farther than
+the largest disk radius from its border, and given as a multiple of the camera's own noise there
+(:func:`sim.fidelity.noise_floor`): ``auto`` accepts a level at 1x or less. Seconds are per full 960x640 capture, projector and ambient
 (``image``: the pinhole render plus the spreading, timed alone as ``blur s``).
 
-    .venv/bin/python benchmarks/thinlens.py [--window 128] [--ref-spp 4096] [--spp 16]
+    .venv/bin/python benchmarks/thinlens.py [--window 128] [--ref-spp 4096] [--spp 16] [--radii R,...]
 """
 from __future__ import annotations
 
@@ -34,8 +34,9 @@ from sim import camera, fidelity, seeds
 from sim.render import Renderer
 from sim.setup import load_setup
 
-APERTURES = (0.00125, 0.0025, 0.005, 0.01)
-"""Metres: the camera-defocus study's radii (f/16 to f/2 on its 39 mm lens)."""
+APERTURES = (0.0005, 0.00125, 0.0025, 0.005, 0.01)
+"""Metres: a sub-pixel disk (f/40 on the study's 39 mm lens), then the camera-defocus study's
+radii (f/16 to f/2)."""
 FOCUS = 0.6
 """Metres: the study's focus distance."""
 CLASSES = ("natural", "random")
@@ -57,6 +58,8 @@ def main() -> None:
     ap.add_argument("--window", type=int, default=128, help="camera window side, pixels")
     ap.add_argument("--ref-spp", type=int, default=4096, help="samples per pixel of the reference")
     ap.add_argument("--spp", type=int, default=16, help="samples per pixel of the image model")
+    ap.add_argument("--radii", default=",".join(map(str, APERTURES)),
+                    help="comma-separated aperture radii, metres")
     args = ap.parse_args()
     full = load_setup(args.setup)
     window = fidelity.window_setup(full, args.window)
@@ -72,9 +75,9 @@ def main() -> None:
           f"{full.camera.resolution[0]}x{full.camera.resolution[1]}, focus {FOCUS} m, reference "
           f"thinlens {args.ref_spp} spp; error = worst class RMS / camera noise (auto accepts <= 1)")
     print(f"| aperture radius (m) | disk (camera px) | image, {args.spp} spp: natural / random | "
-          "ray, 64 spp | ray, 256 spp | image s | blur s | ray 256 s | ratio |")
+          "ray, 64 spp | ray, 256 spp | image s | blur s | ray 256 s | ray / image |")
     print("|---|---|---|---|---|---|---|---|---|")
-    for radius in APERTURES:
+    for radius in (float(r) for r in args.radii.split(",")):
         ref = Renderer(_lens(window, radius, "ray", fidelity.half_spp(args.ref_spp)))
         image = Renderer(_lens(window, radius, "image", args.spp))
         rays = {n: Renderer(_lens(window, radius, "ray", n)) for n in (64, 256)}

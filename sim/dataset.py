@@ -254,7 +254,8 @@ def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
     -------
     dict
         What identifies the captures, as :data:`~sim.layout.RECORD_FILE` holds it: ``variant``, ``width``,
-        ``height``, ``frames``, ``noise_version`` (of the camera-noise streams) and, unless the
+        ``height``, ``frames``, ``noise_version`` (of the camera-noise streams), with a thin-lens
+        camera ``camera_lens`` (``camera.defocus``: how its blur is rendered) and, unless the
         level is ``auto`` (resolved by measuring), ``fidelity`` and ``spp``.
 
     Raises
@@ -268,6 +269,8 @@ def check_render(setup: Setup, spec: FrameSpec, fidelity: str | None = None,
     registration.check_visible(setup, spec.size)
     record = {"variant": choose_variant(), "width": int(spec.size[0]), "height": int(spec.size[1]),
               "frames": spec.source(), "noise_version": camera.noise_version()}
+    if setup.camera.aperture_radius > 0:
+        record["camera_lens"] = setup.camera.defocus
     if level != "auto":
         choice = resolve(setup, fidelity, spp)
         record.update(fidelity=choice.level, spp=choice.spp)
@@ -349,8 +352,10 @@ def check_counts(root: Path, spec: FrameSpec, names: list[str]) -> None:
 
 def _read_record(path: Path) -> dict:
     """The :data:`~sim.layout.RECORD_FILE` keys of a ``render.json`` (or of the ``meta.json`` of a setup rendered
-    before render.json was written), a size of the older form as ``width`` and ``height``, and
-    ``noise_version`` 1 where the file predates the versioned camera noise.
+    before render.json was written), a size of the older form as ``width`` and ``height``,
+    ``noise_version`` 1 where the file predates the versioned camera noise, and ``camera_lens``
+    ``"ray"`` where it predates the key (a thin lens was then always traced; the key is compared
+    only for a camera with an aperture).
 
     Raises
     ------
@@ -372,7 +377,8 @@ def _read_record(path: Path) -> dict:
     meta_seeds = data.get("seeds") if isinstance(data.get("seeds"), dict) else {}
     return {"variant": data["variant"], "fidelity": data["fidelity"], "spp": data["spp"],
             "width": size[0], "height": size[1], "frames": data["frames"],
-            "noise_version": data.get("noise_version", meta_seeds.get("noise_version", 1))}
+            "noise_version": data.get("noise_version", meta_seeds.get("noise_version", 1)),
+            "camera_lens": data.get("camera_lens", "ray")}
 
 
 def _differences(path: Path, record: dict, expected: dict) -> list[str]:

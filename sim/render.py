@@ -105,6 +105,7 @@ class Renderer:
         self.spp = int(spp or setup.render.spp)
         self.albedo = scene.albedo_texture(setup)
         self.lens = projector.lens_for(setup)
+        self.camera_defocus = thinlens.image_defocus(setup)  # refuses too wide a disk first
         self._scene = mi.load_dict(scene.projector_scene(setup, self.albedo, self.fidelity, self.spp,
                                                          self.lens.pad, self.lens.fov(setup.projector.fov)))
         self._params = mi.traverse(self._scene)
@@ -113,7 +114,6 @@ class Renderer:
         p = setup.projector
         self.defocus_px = projector.defocus_blur_diameter_px(
             p.aperture, p.focus_distance, projector.throw_distance(setup), p.fov, p.resolution[0])
-        self.camera_defocus = thinlens.image_defocus(setup)
 
     def emit(self, frame: np.ndarray) -> np.ndarray:
         """Relative linear irradiance the projector emits for an input frame.

@@ -337,12 +337,12 @@ def test_a_defocus_disk_wider_than_the_panel_is_refused_before_its_kernel(tmp_pa
 
 @pytest.mark.parametrize("camera", [{"aperture_radius": 1e30}, {"aperture_radius": 0.01, "focus_distance": 1e-30}],
                          ids=["aperture_radius=1e30", "focus_distance=1e-30"])
-def test_a_camera_defocus_disk_wider_than_the_image_is_refused_before_its_kernel(tmp_path, capsys, camera):
+def test_a_camera_defocus_disk_too_wide_is_refused_before_its_kernel(tmp_path, capsys, camera):
     """The same for the camera's defocus in image space (``camera.defocus = "image"``): refused
     before the scene is built, nothing written."""
     data = tmp_path / "data"
     _refused(capsys, ["render", str(tiny_setup_file(tmp_path, camera=camera)), "--out", str(data), *ARGS],
-             f"camera.aperture_radius = {camera['aperture_radius']:g} m", "expected at most the image's 64 pixels",
+             f"camera.aperture_radius = {camera['aperture_radius']:g} m", "expected at most 1024",
              'camera.defocus = "ray"')
     assert not (data / "tiny" / "setup.toml").exists()
 
@@ -531,6 +531,24 @@ def test_captures_of_the_older_noise_streams_are_not_resumed(reference, tmp_path
     before = _snapshot(root)
     _refused(capsys, ["render", str(reference.parent / "tiny.toml"), "--out", str(root), *ARGS],
              str(root / "tiny" / "render.json"), f"noise_version = 1 (this render: {camera.noise_version()})", "--overwrite")
+    assert _snapshot(root) == before
+
+
+def test_captures_of_a_traced_thin_lens_are_not_resumed_by_the_image_model(tmp_path, capsys):
+    """A thin-lens camera's unfinished setup whose record predates ``camera_lens`` (its lens
+    traced) would mix two lens models once ``camera.defocus`` defaults to ``"image"``: refused,
+    nothing touched; its record names the model."""
+    setup = tiny_setup_file(tmp_path, camera={"aperture_radius": 0.01, "focus_distance": 0.6})
+    root = tmp_path / "data"
+    assert main(["render", str(setup), "--out", str(root), *ARGS]) == 0
+    record = json.loads((root / "tiny" / "render.json").read_text())
+    assert record["camera_lens"] == "image"
+    (root / "tiny" / "meta.json").unlink()
+    del record["camera_lens"]
+    (root / "tiny" / "render.json").write_text(json.dumps(record))
+    before = _snapshot(root)
+    _refused(capsys, ["render", str(setup), "--out", str(root), *ARGS],
+             str(root / "tiny" / "render.json"), "camera_lens = 'ray' (this render: 'image')", "--overwrite")
     assert _snapshot(root) == before
 
 

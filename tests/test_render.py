@@ -18,7 +18,7 @@ def _head_on(**overrides):
     return tiny_setup(camera=cam, **overrides)
 
 
-@pytest.mark.parametrize("case", ["plane-direct", "corner-path", "thinlens-textured"])
+@pytest.mark.parametrize("case", ["plane-direct", "corner-path", "thinlens-textured", "thinlens-traced"])
 def test_linear_in_projector_irradiance(case, variant):
     """R(a) + R(b) = R(a + b) + R(0) with one seed, for every scene kind."""
     if case == "plane-direct":
@@ -28,7 +28,8 @@ def test_linear_in_projector_irradiance(case, variant):
                            render={"fidelity": "path", "max_depth": 3})
     else:
         setup = tiny_setup(surface={"texture": "noise"},
-                           camera={"aperture_radius": 0.01, "focus_distance": 0.9})
+                           camera={"aperture_radius": 0.01, "focus_distance": 0.9,
+                                   "defocus": "ray" if case == "thinlens-traced" else "image"})
     r = Renderer(setup, variant=variant)
     rng = np.random.default_rng(0)
     a, b = (rng.random((64, 64, 3), dtype=np.float32) for _ in range(2))

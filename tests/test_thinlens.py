@@ -36,6 +36,9 @@ def test_diameters_follow_the_thin_lens_formula():
     want_centre = 2 * 0.02 * focal * 0.4 / 0.6
     assert d[31:33, 31:33] == pytest.approx(want_centre, rel=1e-6)  # the plane is at depth 1 everywhere
     assert np.ptp(d) < 1e-9
+    away = tiny_setup(surface={"size": [0.2, 0.2]},  # most pixels see no surface: infinite depth
+                      camera={"position": [0.0, 0.0, 1.0], "aperture_radius": 0.02, "focus_distance": 0.6})
+    assert thinlens.diameters(away)[0, 0] == pytest.approx(2 * 0.02 * focal / 0.6, rel=1e-6)
     tilted = thinlens.diameters(_lens(0.02, "image"))  # the camera 0.25 m off axis: depth varies
     assert np.ptp(tilted) > 0.05 * tilted.mean()
 
@@ -95,6 +98,8 @@ def test_the_image_model_renders_and_calibrates_the_pinhole_camera(tmp_path):
 def test_a_pinhole_or_an_unknown_model():
     assert thinlens.image_defocus(tiny_setup()) is None
     assert thinlens.image_defocus(_lens(0.03, "ray")) is None
+    # disks wider than this 64-pixel image are spread (auto's probe window crops a larger camera)
+    assert 64 < thinlens.diameters(_lens(0.6, "image")).max() <= thinlens.MAX_DISK_PX
     with pytest.raises(SetupError, match=r'camera\.defocus = "blur": expected one of "image", "ray"'):
         _lens(0.03, "blur")
 

@@ -50,9 +50,12 @@ def test_agrees_with_converged_direct_on_default_setup(default_op, kind):
 
 
 @pytest.mark.slow
-def test_defocused_camera_and_projector_agree_with_converged_direct():
-    """The thin-lens camera widens each pixel's footprint; the operator still reproduces it."""
+@pytest.mark.parametrize("model", ["ray", "image"])
+def test_defocused_camera_and_projector_agree_with_converged_direct(model):
+    """A traced thin-lens camera widens each pixel's footprint, one in image space blurs the
+    operator's output; either way the operator reproduces a converged direct render."""
     setup = _shipped("defocus")
+    setup = replace(setup, camera=replace(setup.camera, defocus=model))
     tr = TransportRenderer(setup, 256)
     frame = probe_frame("stripes2", SIZE, seed=4)
     ref = Renderer(setup, "direct", 1024).projector_radiance(tr.emit(frame), seed=12)

@@ -37,6 +37,10 @@ from sim.projector.defocus import SHARP_DIAMETER, defocus_blur_diameter_px, defo
 
 DEFOCUS_MODELS = ("image", "ray")
 """Values of ``camera.defocus``."""
+MAX_DISK_PX = 1024
+"""Widest disk (camera pixels) the image model spreads a pixel's light over: its kernel has 1025²
+taps. Fixed rather than the image's size, so that ``auto``'s probe window (a crop of the camera)
+accepts the disks of the whole camera."""
 
 
 def traced(cam) -> bool:
@@ -69,29 +73,30 @@ def diameters(setup) -> np.ndarray:
     numpy.ndarray
         float64 (height, width): ``2 r |d - f| / (f d)`` times the focal length in pixels, ``d``
         the depth of the surface point the pixel's pinhole ray hits; a pixel that sees no
-        surface (no light to spread) takes the median of those that do.
+        surface sees the room light's constant emitter, at infinite depth: ``2 r / f`` times the
+        focal length.
 
     Raises
     ------
     ProcamError
-        If a disk is wider than the image (its kernel's size grows as the square of its
-        diameter): checked before any kernel is made.
+        If a disk is wider than :data:`MAX_DISK_PX` (its kernel's size grows as the square of
+        its diameter): checked before any kernel is made.
     """
     cam = setup.camera
     pinhole = geometry.Pinhole.from_config(cam)
     depth = surfaces.surface_for(setup.surface).projector_depth(pinhole)
     hit = np.isfinite(depth) & (depth > 0)
-    fill = float(np.median(depth[hit])) if hit.any() else cam.focus_distance
-    out = np.asarray(defocus_blur_diameter_px(2.0 * cam.aperture_radius, cam.focus_distance,
-                                              np.where(hit, depth, fill), cam.fov, cam.resolution[0]),
-                     np.float64)
-    widest, side = float(out.max()), max(cam.resolution)
-    if not widest <= side:
+    near = defocus_blur_diameter_px(2.0 * cam.aperture_radius, cam.focus_distance,
+                                    np.where(hit, depth, cam.focus_distance), cam.fov, cam.resolution[0])
+    far = 2.0 * cam.aperture_radius / cam.focus_distance * (cam.resolution[0] / 2) / pinhole.tan_half
+    out = np.where(hit, near, far).astype(np.float64)
+    widest = float(out.max())
+    if not widest <= MAX_DISK_PX:
         raise ProcamError(f"setup {setup.name!r}: camera.aperture_radius = {cam.aperture_radius:g} m "
                           f"focused at camera.focus_distance = {cam.focus_distance:g} m blurs a pixel "
-                          f"over a disk of {widest:.3g} camera pixels; expected at most the image's "
-                          f"{side} pixels (a smaller aperture, or a focus distance nearer the "
-                          'surface\'s; camera.defocus = "ray" traces the lens instead)')
+                          f"over a disk of {widest:.3g} camera pixels; expected at most {MAX_DISK_PX} "
+                          "(a smaller aperture, or a focus distance nearer the surface's; "
+                          'camera.defocus = "ray" traces the lens instead)')
     return out
 
 
@@ -114,7 +119,18 @@ class ImageDefocus:
         self._plan = defocus_plan(self.diameters)
 
     def __call__(self, radiance: np.ndarray) -> np.ndarray:
-        """The radiance with each pixel's light spread over its disk (float32 (H, W, 3))."""
+        """Spread each pixel's light over its disk.
+
+        Parameters
+        ----------
+        radiance : numpy.ndarray
+            (H, W, 3) linear radiance of the pinhole camera.
+
+        Returns
+        -------
+        numpy.ndarray
+            float32 (H, W, 3).
+        """
         return varying_defocus(np.asarray(radiance, np.float32), self.diameters, self._plan)
 
 
