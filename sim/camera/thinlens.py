@@ -23,7 +23,8 @@ aperture is sampled uniformly over its disk, each sample of weight one. Hence ``
 
 ``tests/test_thinlens.py`` compares the two on a textured plane; ``benchmarks/thinlens.py``
 measures the error of ``"image"`` over the camera's noise by disk size (within it on natural
-frames from 2-pixel disks, on frames of random pixels from 4) and the time of both.
+frames at every size measured, 0.8 to 16 pixels; on frames of random pixels from 4) and the time
+of both. A disk under about a pixel is the identity kernel: such a lens renders as the pinhole.
 """
 from __future__ import annotations
 
