@@ -62,7 +62,7 @@ def test_image_defocus_matches_the_traced_thin_lens(radius):
     np.testing.assert_allclose(model[INNER, INNER].mean(), truth[INNER, INNER].mean(), rtol=0.01)
 
 
-def test_image_defocus_is_linear_keeps_energy_and_widens_a_line_by_the_diameter():
+def test_image_defocus_is_linear_keeps_energy_and_spreads_a_line_as_the_disk_does():
     setup = _lens(0.03, "image", position=[0.0, 0.0, 1.0])  # head-on: one diameter
     blur = thinlens.ImageDefocus(setup)
     d = float(blur.diameters[32, 32])
@@ -74,9 +74,11 @@ def test_image_defocus_is_linear_keeps_energy_and_widens_a_line_by_the_diameter(
     assert blur(spot).sum() == pytest.approx(spot.sum(), rel=1e-5)
     line = np.zeros((64, 64, 3), np.float32)
     line[:, 32] = 1.0
-    profile = blur(line)[32, :, 0]
-    assert np.count_nonzero(profile > 1e-6) == pytest.approx(d, abs=2.0)  # the disk's width
-    assert profile.argmax() == 32
+    profile = blur(line)[32, :, 0].astype(np.float64)
+    x = np.arange(64) - 32
+    assert (profile * x).sum() == pytest.approx(0.0, abs=1e-6)  # centred on the line
+    # across a line, a uniform disk of radius R spreads with variance R² / 4, plus the pixel's 1/12
+    assert (profile * x * x).sum() / profile.sum() == pytest.approx((d / 2) ** 2 / 4 + 1 / 12, rel=0.03)
 
 
 def test_the_image_model_renders_and_calibrates_the_pinhole_camera(tmp_path):
