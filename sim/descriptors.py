@@ -46,10 +46,8 @@ def camera_blur(setup: Setup, size: tuple[int, int]) -> float:
 
     Parameters
     ----------
-    setup : Setup
-        The setup.
-    size : (int, int)
-        Canonical (width, height) in pixels.
+    setup, size
+        As for :func:`projector_blur`.
 
     Raises
     ------
