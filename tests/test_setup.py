@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from sim import images, surfaces
+from sim.camera import thinlens
 from sim.projector import frame_area
 from sim.errors import SetupError
 from sim.io import write_png
@@ -71,7 +72,7 @@ def test_variants_differ_from_ideal_only_where_intended():
     assert defocus == dataclasses.replace(
         ideal, name="defocus",
         projector=dataclasses.replace(ideal.projector, aperture=0.02, focus_distance=0.8),
-        camera=dataclasses.replace(ideal.camera, aperture_radius=0.005, focus_distance=0.9))
+        camera=dataclasses.replace(ideal.camera, aperture_radius=0.005, focus_distance=0.9, defocus="ray"))
 
 
 def test_defocus_blurs_a_few_pixels():
@@ -84,7 +85,8 @@ def test_defocus_blurs_a_few_pixels():
     dist = math.dist(c.position, c.look_at)
     cam_coc = 2 * c.aperture_radius * abs(dist - c.focus_distance) / c.focus_distance
     cam_pixel = 2 * dist * math.tan(math.radians(c.fov) / 2) / c.resolution[0]
-    assert 0.2 <= cam_coc / cam_pixel <= 1.0  # slightly defocused
+    assert 0.2 <= cam_coc / cam_pixel <= 1.0  # slightly defocused: a disk under a pixel, traced
+    assert c.defocus == "ray" and thinlens.traced(c)
 
 
 def test_corner_scene_uses_inter_reflection():
