@@ -52,7 +52,7 @@ def camera_blur(setup: Setup, size: tuple[int, int]) -> float:
     Raises
     ------
     ProcamError
-        If a disk is wider than the image (:func:`sim.camera.thinlens.diameters`), or no two
+        If a disk is wider than :data:`sim.camera.thinlens.MAX_DISK_PX`, or no two
         neighbouring canonical pixels are seen.
     """
     if setup.camera.aperture_radius <= 0:
